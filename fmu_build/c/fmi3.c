@@ -1,0 +1,401 @@
+/* FMI 3.0 co-simulation glue for the HarmonicDrive model: no physics here, see model.c. */
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi3Functions.h"
+#include "model.h"
+
+typedef enum { ST_INSTANTIATED, ST_INITIALIZATION, ST_STEP, ST_TERMINATED, ST_ERROR } Phase;
+
+typedef struct {
+    HDModel model;
+    Phase phase;
+    double start_time;
+    char *name;
+    fmi3InstanceEnvironment env;
+    fmi3LogMessageCallback log;
+    int logging_on;
+} Instance;
+
+/* FMU state snapshot: the complete model plus the instance phase. */
+typedef struct {
+    HDModel model;
+    Phase phase;
+    double start_time;
+} Snapshot;
+
+#define SERIAL_MAGIC 0x48444d33u /* "HDM3" */
+#define M_INST (1u << ST_INSTANTIATED)
+#define M_INIT (1u << ST_INITIALIZATION)
+#define M_STEP (1u << ST_STEP)
+#define M_TERM (1u << ST_TERMINATED)
+#define M_ERR (1u << ST_ERROR)
+#define M_ANY (M_INST | M_INIT | M_STEP | M_TERM | M_ERR)
+
+static void log_msg(Instance *in, fmi3Status status, const char *category, const char *fmt, ...) {
+    if (!in->log) return;
+    if (status == fmi3OK && !in->logging_on) return;
+    char buf[512];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(buf, sizeof buf, fmt, ap);
+    va_end(ap);
+    in->log(in->env, status, category, buf);
+}
+
+static fmi3Status fail(Instance *in, const char *where, const char *msg) {
+    log_msg(in, fmi3Error, "logStatusError", "%s: %s", where, msg);
+    return fmi3Error;
+}
+
+static int allowed(Instance *in, const char *where, unsigned mask) {
+    if (mask & (1u << in->phase)) return 1;
+    log_msg(in, fmi3Error, "logStatusError", "%s must not be called in the current state", where);
+    return 0;
+}
+
+const char *fmi3GetVersion(void) { return fmi3Version; }
+
+fmi3Status fmi3SetDebugLogging(fmi3Instance c, fmi3Boolean on, size_t n, const fmi3String cats[]) {
+    (void)n; (void)cats;
+    ((Instance *)c)->logging_on = on;
+    return fmi3OK;
+}
+
+fmi3Instance fmi3InstantiateCoSimulation(fmi3String name, fmi3String token, fmi3String resource_path,
+                                         fmi3Boolean visible, fmi3Boolean logging_on, fmi3Boolean event_mode_used,
+                                         fmi3Boolean early_return_allowed, const fmi3ValueReference required[],
+                                         size_t n_required, fmi3InstanceEnvironment env,
+                                         fmi3LogMessageCallback log, fmi3IntermediateUpdateCallback update) {
+    (void)resource_path; (void)visible; (void)early_return_allowed; (void)required; (void)n_required; (void)update;
+    if (!token || strcmp(token, HD_INSTANTIATION_TOKEN) != 0 || event_mode_used) {
+        if (log)
+            log(env, fmi3Error, "logStatusError",
+                event_mode_used ? "fmi3InstantiateCoSimulation: event mode is not supported"
+                                : "fmi3InstantiateCoSimulation: instantiation token does not match this FMU");
+        return NULL;
+    }
+    Instance *in = (Instance *)calloc(1, sizeof(Instance));
+    if (!in) return NULL;
+    const char *nm = name ? name : "HarmonicDrive";
+    in->name = (char *)malloc(strlen(nm) + 1);
+    if (!in->name) { free(in); return NULL; }
+    strcpy(in->name, nm);
+    in->env = env;
+    in->log = log;
+    in->logging_on = logging_on;
+    hd_set_defaults(&in->model);
+    in->phase = ST_INSTANTIATED;
+    return in;
+}
+
+fmi3Instance fmi3InstantiateModelExchange(fmi3String name, fmi3String token, fmi3String resource_path,
+                                          fmi3Boolean visible, fmi3Boolean logging_on,
+                                          fmi3InstanceEnvironment env, fmi3LogMessageCallback log) {
+    (void)name; (void)token; (void)resource_path; (void)visible; (void)logging_on;
+    if (log) log(env, fmi3Error, "logStatusError", "only co-simulation is supported");
+    return NULL;
+}
+
+fmi3Instance fmi3InstantiateScheduledExecution(fmi3String name, fmi3String token, fmi3String resource_path,
+                                               fmi3Boolean visible, fmi3Boolean logging_on,
+                                               fmi3InstanceEnvironment env, fmi3LogMessageCallback log,
+                                               fmi3ClockUpdateCallback clock_update,
+                                               fmi3LockPreemptionCallback lock,
+                                               fmi3UnlockPreemptionCallback unlock) {
+    (void)name; (void)token; (void)resource_path; (void)visible; (void)logging_on;
+    (void)clock_update; (void)lock; (void)unlock;
+    if (log) log(env, fmi3Error, "logStatusError", "only co-simulation is supported");
+    return NULL;
+}
+
+void fmi3FreeInstance(fmi3Instance c) {
+    Instance *in = (Instance *)c;
+    if (!in) return;
+    free(in->name);
+    free(in);
+}
+
+fmi3Status fmi3EnterInitializationMode(fmi3Instance c, fmi3Boolean tol_defined, fmi3Float64 tol,
+                                       fmi3Float64 start_time, fmi3Boolean stop_defined, fmi3Float64 stop_time) {
+    Instance *in = (Instance *)c;
+    (void)tol_defined; (void)tol; (void)stop_defined; (void)stop_time;
+    if (!allowed(in, "fmi3EnterInitializationMode", M_INST)) return fmi3Error;
+    in->start_time = start_time;
+    in->phase = ST_INITIALIZATION;
+    return fmi3OK;
+}
+
+fmi3Status fmi3ExitInitializationMode(fmi3Instance c) {
+    Instance *in = (Instance *)c;
+    char err[256];
+    if (!allowed(in, "fmi3ExitInitializationMode", M_INIT)) return fmi3Error;
+    if (hd_initialize(&in->model, in->start_time, err, sizeof err) != HD_OK)
+        return fail(in, "fmi3ExitInitializationMode", err);
+    in->phase = ST_STEP;
+    return fmi3OK;
+}
+
+fmi3Status fmi3EnterStepMode(fmi3Instance c) {
+    return allowed((Instance *)c, "fmi3EnterStepMode", M_STEP) ? fmi3OK : fmi3Error;
+}
+
+fmi3Status fmi3Terminate(fmi3Instance c) {
+    Instance *in = (Instance *)c;
+    if (!allowed(in, "fmi3Terminate", M_STEP | M_ERR)) return fmi3Error;
+    in->phase = ST_TERMINATED;
+    return fmi3OK;
+}
+
+fmi3Status fmi3Reset(fmi3Instance c) {
+    Instance *in = (Instance *)c;
+    hd_set_defaults(&in->model);
+    in->start_time = 0.0;
+    in->phase = ST_INSTANTIATED;
+    return fmi3OK;
+}
+
+/* Scalar variables only: nValues must equal nValueReferences. */
+static int scalar_counts(Instance *in, const char *where, size_t nvr, size_t nv) {
+    if (nvr == nv) return 1;
+    log_msg(in, fmi3Error, "logStatusError", "%s: nValues (%zu) must equal nValueReferences (%zu)", where, nv, nvr);
+    return 0;
+}
+
+fmi3Status fmi3GetFloat64(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3Float64 v[], size_t nv) {
+    Instance *in = (Instance *)c;
+    char err[256];
+    if (!allowed(in, "fmi3GetFloat64", M_ANY) || !scalar_counts(in, "fmi3GetFloat64", nvr, nv)) return fmi3Error;
+    for (size_t i = 0; i < nvr; ++i)
+        if (hd_get_real(&in->model, vr[i], &v[i], err, sizeof err) != HD_OK) return fail(in, "fmi3GetFloat64", err);
+    return fmi3OK;
+}
+
+fmi3Status fmi3GetInt32(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3Int32 v[], size_t nv) {
+    Instance *in = (Instance *)c;
+    char err[256];
+    if (!allowed(in, "fmi3GetInt32", M_ANY) || !scalar_counts(in, "fmi3GetInt32", nvr, nv)) return fmi3Error;
+    for (size_t i = 0; i < nvr; ++i)
+        if (hd_get_integer(&in->model, vr[i], &v[i], err, sizeof err) != HD_OK) return fail(in, "fmi3GetInt32", err);
+    return fmi3OK;
+}
+
+fmi3Status fmi3GetBoolean(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3Boolean v[], size_t nv) {
+    Instance *in = (Instance *)c;
+    char err[256];
+    int b;
+    if (!allowed(in, "fmi3GetBoolean", M_ANY) || !scalar_counts(in, "fmi3GetBoolean", nvr, nv)) return fmi3Error;
+    for (size_t i = 0; i < nvr; ++i) {
+        if (hd_get_boolean(&in->model, vr[i], &b, err, sizeof err) != HD_OK) return fail(in, "fmi3GetBoolean", err);
+        v[i] = b ? fmi3True : fmi3False;
+    }
+    return fmi3OK;
+}
+
+static int settable(Instance *in, const char *where, HDCausality causality) {
+    unsigned mask = causality == HD_INPUT ? (M_INST | M_INIT | M_STEP) : (M_INST | M_INIT);
+    return allowed(in, where, mask);
+}
+
+fmi3Status fmi3SetFloat64(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const fmi3Float64 v[],
+                          size_t nv) {
+    Instance *in = (Instance *)c;
+    char err[256];
+    if (!scalar_counts(in, "fmi3SetFloat64", nvr, nv)) return fmi3Error;
+    for (size_t i = 0; i < nvr; ++i) {
+        if (!settable(in, "fmi3SetFloat64", hd_causality(vr[i], HD_REAL))) return fmi3Error;
+        if (hd_set_real(&in->model, vr[i], v[i], err, sizeof err) != HD_OK) return fail(in, "fmi3SetFloat64", err);
+    }
+    return fmi3OK;
+}
+
+fmi3Status fmi3SetInt32(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const fmi3Int32 v[], size_t nv) {
+    Instance *in = (Instance *)c;
+    char err[256];
+    if (!scalar_counts(in, "fmi3SetInt32", nvr, nv)) return fmi3Error;
+    for (size_t i = 0; i < nvr; ++i) {
+        if (!settable(in, "fmi3SetInt32", hd_causality(vr[i], HD_INTEGER))) return fmi3Error;
+        if (hd_set_integer(&in->model, vr[i], v[i], err, sizeof err) != HD_OK) return fail(in, "fmi3SetInt32", err);
+    }
+    return fmi3OK;
+}
+
+/* Getters and setters of types the model does not have: fine for zero variables, an error otherwise. */
+#define NO_SUCH_TYPE(fn, ctype, constness) \
+    fmi3Status fn(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, constness ctype v[], size_t nv) { \
+        (void)vr; (void)v; (void)nv; \
+        return nvr == 0 ? fmi3OK : fail((Instance *)c, #fn, "the model has no variables of this type"); \
+    }
+NO_SUCH_TYPE(fmi3GetFloat32, fmi3Float32, )
+NO_SUCH_TYPE(fmi3GetInt8, fmi3Int8, )
+NO_SUCH_TYPE(fmi3GetUInt8, fmi3UInt8, )
+NO_SUCH_TYPE(fmi3GetInt16, fmi3Int16, )
+NO_SUCH_TYPE(fmi3GetUInt16, fmi3UInt16, )
+NO_SUCH_TYPE(fmi3GetUInt32, fmi3UInt32, )
+NO_SUCH_TYPE(fmi3GetInt64, fmi3Int64, )
+NO_SUCH_TYPE(fmi3GetUInt64, fmi3UInt64, )
+NO_SUCH_TYPE(fmi3GetString, fmi3String, )
+NO_SUCH_TYPE(fmi3SetFloat32, fmi3Float32, const)
+NO_SUCH_TYPE(fmi3SetInt8, fmi3Int8, const)
+NO_SUCH_TYPE(fmi3SetUInt8, fmi3UInt8, const)
+NO_SUCH_TYPE(fmi3SetInt16, fmi3Int16, const)
+NO_SUCH_TYPE(fmi3SetUInt16, fmi3UInt16, const)
+NO_SUCH_TYPE(fmi3SetUInt32, fmi3UInt32, const)
+NO_SUCH_TYPE(fmi3SetInt64, fmi3Int64, const)
+NO_SUCH_TYPE(fmi3SetUInt64, fmi3UInt64, const)
+NO_SUCH_TYPE(fmi3SetBoolean, fmi3Boolean, const)
+NO_SUCH_TYPE(fmi3SetString, fmi3String, const)
+
+fmi3Status fmi3GetBinary(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, size_t sizes[], fmi3Binary v[],
+                         size_t nv) {
+    (void)vr; (void)sizes; (void)v; (void)nv;
+    return nvr == 0 ? fmi3OK : fail((Instance *)c, "fmi3GetBinary", "the model has no Binary variables");
+}
+
+fmi3Status fmi3SetBinary(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const size_t sizes[],
+                         const fmi3Binary v[], size_t nv) {
+    (void)vr; (void)sizes; (void)v; (void)nv;
+    return nvr == 0 ? fmi3OK : fail((Instance *)c, "fmi3SetBinary", "the model has no Binary variables");
+}
+
+fmi3Status fmi3GetClock(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3Clock v[]) {
+    (void)vr; (void)v;
+    return nvr == 0 ? fmi3OK : fail((Instance *)c, "fmi3GetClock", "the model has no clocks");
+}
+
+fmi3Status fmi3SetClock(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const fmi3Clock v[]) {
+    (void)vr; (void)v;
+    return nvr == 0 ? fmi3OK : fail((Instance *)c, "fmi3SetClock", "the model has no clocks");
+}
+
+fmi3Status fmi3GetFMUState(fmi3Instance c, fmi3FMUState *state) {
+    Instance *in = (Instance *)c;
+    Snapshot *s = (Snapshot *)*state;
+    if (!s) {
+        s = (Snapshot *)malloc(sizeof(Snapshot));
+        if (!s) return fail(in, "fmi3GetFMUState", "out of memory");
+    }
+    s->model = in->model;
+    s->phase = in->phase;
+    s->start_time = in->start_time;
+    *state = s;
+    return fmi3OK;
+}
+
+fmi3Status fmi3SetFMUState(fmi3Instance c, fmi3FMUState state) {
+    Instance *in = (Instance *)c;
+    const Snapshot *s = (const Snapshot *)state;
+    if (!s) return fail(in, "fmi3SetFMUState", "NULL state");
+    in->model = s->model;
+    in->phase = s->phase;
+    in->start_time = s->start_time;
+    return fmi3OK;
+}
+
+fmi3Status fmi3FreeFMUState(fmi3Instance c, fmi3FMUState *state) {
+    (void)c;
+    if (state && *state) {
+        free(*state);
+        *state = NULL;
+    }
+    return fmi3OK;
+}
+
+fmi3Status fmi3SerializedFMUStateSize(fmi3Instance c, fmi3FMUState state, size_t *size) {
+    (void)c; (void)state;
+    *size = 2 * sizeof(uint32_t) + sizeof(Snapshot);
+    return fmi3OK;
+}
+
+fmi3Status fmi3SerializeFMUState(fmi3Instance c, fmi3FMUState state, fmi3Byte bytes[], size_t size) {
+    Instance *in = (Instance *)c;
+    uint32_t head[2] = {SERIAL_MAGIC, (uint32_t)sizeof(Snapshot)};
+    if (!state || size < sizeof head + sizeof(Snapshot)) return fail(in, "fmi3SerializeFMUState", "buffer too small");
+    memcpy(bytes, head, sizeof head);
+    memcpy(bytes + sizeof head, state, sizeof(Snapshot));
+    return fmi3OK;
+}
+
+fmi3Status fmi3DeserializeFMUState(fmi3Instance c, const fmi3Byte bytes[], size_t size, fmi3FMUState *state) {
+    Instance *in = (Instance *)c;
+    uint32_t head[2];
+    if (size != sizeof head + sizeof(Snapshot))
+        return fail(in, "fmi3DeserializeFMUState", "serialized state has the wrong size for this FMU");
+    memcpy(head, bytes, sizeof head);
+    if (head[0] != SERIAL_MAGIC || head[1] != sizeof(Snapshot))
+        return fail(in, "fmi3DeserializeFMUState", "serialized state does not come from this FMU");
+    if (!*state) {
+        *state = malloc(sizeof(Snapshot));
+        if (!*state) return fail(in, "fmi3DeserializeFMUState", "out of memory");
+    }
+    memcpy(*state, bytes + sizeof head, sizeof(Snapshot));
+    return fmi3OK;
+}
+
+fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 t, fmi3Float64 h, fmi3Boolean no_set_prior,
+                      fmi3Boolean *event_handling_needed, fmi3Boolean *terminate, fmi3Boolean *early_return,
+                      fmi3Float64 *last_successful_time) {
+    Instance *in = (Instance *)c;
+    char err[256];
+    (void)t; (void)no_set_prior;
+    if (event_handling_needed) *event_handling_needed = fmi3False;
+    if (terminate) *terminate = fmi3False;
+    if (early_return) *early_return = fmi3False;
+    if (!allowed(in, "fmi3DoStep", M_STEP)) return fmi3Error;
+    if (hd_do_step(&in->model, h, err, sizeof err) != HD_OK) {
+        if (last_successful_time) *last_successful_time = in->model.time;
+        return fail(in, "fmi3DoStep", err);
+    }
+    if (last_successful_time) *last_successful_time = in->model.time;
+    return fmi3OK;
+}
+
+/* ---- API parts this co-simulation FMU does not provide (capability flags say so). ---- */
+#define UNSUPPORTED(call, ...) \
+    fmi3Status call(__VA_ARGS__) { return fail((Instance *)instance, #call, "not supported by this FMU"); }
+
+UNSUPPORTED(fmi3EnterEventMode, fmi3Instance instance)
+UNSUPPORTED(fmi3GetNumberOfVariableDependencies, fmi3Instance instance, fmi3ValueReference vr, size_t *n)
+UNSUPPORTED(fmi3GetVariableDependencies, fmi3Instance instance, fmi3ValueReference dependent, size_t e1[],
+            fmi3ValueReference ind[], size_t e2[], fmi3DependencyKind kinds[], size_t n)
+UNSUPPORTED(fmi3GetDirectionalDerivative, fmi3Instance instance, const fmi3ValueReference u[], size_t nu,
+            const fmi3ValueReference k[], size_t nk, const fmi3Float64 seed[], size_t ns, fmi3Float64 sens[],
+            size_t nsens)
+UNSUPPORTED(fmi3GetAdjointDerivative, fmi3Instance instance, const fmi3ValueReference u[], size_t nu,
+            const fmi3ValueReference k[], size_t nk, const fmi3Float64 seed[], size_t ns, fmi3Float64 sens[],
+            size_t nsens)
+UNSUPPORTED(fmi3EnterConfigurationMode, fmi3Instance instance)
+UNSUPPORTED(fmi3ExitConfigurationMode, fmi3Instance instance)
+UNSUPPORTED(fmi3GetIntervalDecimal, fmi3Instance instance, const fmi3ValueReference vr[], size_t n, fmi3Float64 iv[],
+            fmi3IntervalQualifier q[])
+UNSUPPORTED(fmi3GetIntervalFraction, fmi3Instance instance, const fmi3ValueReference vr[], size_t n,
+            fmi3UInt64 cnt[], fmi3UInt64 res[], fmi3IntervalQualifier q[])
+UNSUPPORTED(fmi3GetShiftDecimal, fmi3Instance instance, const fmi3ValueReference vr[], size_t n, fmi3Float64 s[])
+UNSUPPORTED(fmi3GetShiftFraction, fmi3Instance instance, const fmi3ValueReference vr[], size_t n, fmi3UInt64 cnt[],
+            fmi3UInt64 res[])
+UNSUPPORTED(fmi3SetIntervalDecimal, fmi3Instance instance, const fmi3ValueReference vr[], size_t n,
+            const fmi3Float64 iv[])
+UNSUPPORTED(fmi3SetIntervalFraction, fmi3Instance instance, const fmi3ValueReference vr[], size_t n,
+            const fmi3UInt64 cnt[], const fmi3UInt64 res[])
+UNSUPPORTED(fmi3SetShiftDecimal, fmi3Instance instance, const fmi3ValueReference vr[], size_t n,
+            const fmi3Float64 s[])
+UNSUPPORTED(fmi3SetShiftFraction, fmi3Instance instance, const fmi3ValueReference vr[], size_t n,
+            const fmi3UInt64 cnt[], const fmi3UInt64 res[])
+UNSUPPORTED(fmi3EvaluateDiscreteStates, fmi3Instance instance)
+UNSUPPORTED(fmi3UpdateDiscreteStates, fmi3Instance instance, fmi3Boolean *a, fmi3Boolean *b, fmi3Boolean *c,
+            fmi3Boolean *d, fmi3Boolean *e, fmi3Float64 *f)
+UNSUPPORTED(fmi3EnterContinuousTimeMode, fmi3Instance instance)
+UNSUPPORTED(fmi3CompletedIntegratorStep, fmi3Instance instance, fmi3Boolean a, fmi3Boolean *b, fmi3Boolean *c)
+UNSUPPORTED(fmi3SetTime, fmi3Instance instance, fmi3Float64 t)
+UNSUPPORTED(fmi3SetContinuousStates, fmi3Instance instance, const fmi3Float64 x[], size_t n)
+UNSUPPORTED(fmi3GetContinuousStateDerivatives, fmi3Instance instance, fmi3Float64 dx[], size_t n)
+UNSUPPORTED(fmi3GetEventIndicators, fmi3Instance instance, fmi3Float64 z[], size_t n)
+UNSUPPORTED(fmi3GetContinuousStates, fmi3Instance instance, fmi3Float64 x[], size_t n)
+UNSUPPORTED(fmi3GetNominalsOfContinuousStates, fmi3Instance instance, fmi3Float64 x[], size_t n)
+UNSUPPORTED(fmi3GetNumberOfEventIndicators, fmi3Instance instance, size_t *n)
+UNSUPPORTED(fmi3GetNumberOfContinuousStates, fmi3Instance instance, size_t *n)
+UNSUPPORTED(fmi3GetOutputDerivatives, fmi3Instance instance, const fmi3ValueReference vr[], size_t n,
+            const fmi3Int32 orders[], fmi3Float64 v[], size_t nv)
+UNSUPPORTED(fmi3ActivateModelPartition, fmi3Instance instance, fmi3ValueReference clock, fmi3Float64 t)

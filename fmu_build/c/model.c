@@ -1,0 +1,476 @@
+/* HarmonicDrive plant physics: closed-form segments and exactly located stick-slip events. See model.h.
+ *
+ * Segment solution. With each body's stick/slip state fixed and the torque held, the deflection obeys
+ *     d'' = -w^2 d + c,   w^2 = K_s (a_m r^2/J_m + a_l/J_l),   c = a_m r F_m/J_m - a_l F_l/J_l
+ * (a_* = 1 for a slipping body, F_m = T - f_m dir_m, F_l = -f_l dir_l), so d(t), its integrals and both bodies'
+ * velocities and positions are sums of a constant, a linear term and one sinusoid of frequency w. A stuck body does
+ * not move at all (its position is kept bit-for-bit).
+ *
+ * Events. Every event function G (a slipping body's -dir*v, a stuck body's +-N - f) has the shape
+ * a + b t + R cos(w t - psi), so its local maxima are known in closed form and their heights grow linearly with
+ * their index. The first time G reaches zero therefore lies on the rising flank before the first local maximum
+ * that is >= 0, which is computed directly; bisection on that monotone flank finds it to the last bit. Events are
+ * evaluated through the same state formulas that are committed, so the stick/slip decision taken after an event
+ * always agrees with the event that triggered it (no Zeno loops from rounding).
+ */
+#include "model.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#define HD_PI 3.14159265358979323846
+#define HD_MAX_EVENTS_PER_STEP 10000000L
+
+/* ---------------------------------------------------------------- parameters and variable access --------- */
+
+void hd_set_defaults(HDModel *m) {
+    memset(m, 0, sizeof(*m));
+#define X(vr, name, lo, hi, start, unit) m->name = start;
+    HD_REAL_PARAMETERS(X)
+    HD_REAL_INPUTS(X)
+    HD_INTEGER_PARAMETERS(X)
+#undef X
+    m->motor_stuck = m->load_stuck = 1;
+    m->motor_dir = m->load_dir = 1;
+}
+
+HDCausality hd_causality(uint32_t vr, HDType type) {
+    switch (type) {
+    case HD_REAL:
+        if (vr == HD_VR_time) return HD_INDEPENDENT;
+#define X(v, name, lo, hi, start, unit) if (vr == v) return HD_PARAMETER;
+        HD_REAL_PARAMETERS(X)
+#undef X
+#define X(v, name, lo, hi, start, unit) if (vr == v) return HD_INPUT;
+        HD_REAL_INPUTS(X)
+#undef X
+#define X(v, name, unit) if (vr == v) return HD_OUTPUT;
+        HD_REAL_OUTPUTS(X)
+#undef X
+        break;
+    case HD_INTEGER:
+#define X(v, name, lo, hi, start, unit) if (vr == v) return HD_PARAMETER;
+        HD_INTEGER_PARAMETERS(X)
+#undef X
+#define X(v, name, unit) if (vr == v) return HD_OUTPUT;
+        HD_INTEGER_OUTPUTS(X)
+#undef X
+        break;
+    case HD_BOOLEAN:
+#define X(v, name, unit) if (vr == v) return HD_OUTPUT;
+        HD_BOOLEAN_OUTPUTS(X)
+#undef X
+        break;
+    }
+    return HD_UNKNOWN;
+}
+
+static HDStatus unknown_vr(uint32_t vr, const char *type, char *err, size_t errlen) {
+    snprintf(err, errlen, "unknown %s value reference %u", type, (unsigned)vr);
+    return HD_ERROR;
+}
+
+HDStatus hd_get_real(const HDModel *m, uint32_t vr, double *value, char *err, size_t errlen) {
+    if (vr == HD_VR_time) { *value = m->time; return HD_OK; }
+#define X(v, name, lo, hi, start, unit) if (vr == v) { *value = m->name; return HD_OK; }
+    HD_REAL_PARAMETERS(X)
+    HD_REAL_INPUTS(X)
+#undef X
+#define X(v, name, unit) if (vr == v) { *value = m->name; return HD_OK; }
+    HD_REAL_OUTPUTS(X)
+#undef X
+    return unknown_vr(vr, "Real", err, errlen);
+}
+
+HDStatus hd_get_integer(const HDModel *m, uint32_t vr, int32_t *value, char *err, size_t errlen) {
+#define X(v, name, lo, hi, start, unit) if (vr == v) { *value = m->name; return HD_OK; }
+    HD_INTEGER_PARAMETERS(X)
+#undef X
+#define X(v, name, unit) if (vr == v) { *value = m->name; return HD_OK; }
+    HD_INTEGER_OUTPUTS(X)
+#undef X
+    return unknown_vr(vr, "Integer", err, errlen);
+}
+
+HDStatus hd_get_boolean(const HDModel *m, uint32_t vr, int *value, char *err, size_t errlen) {
+#define X(v, name, unit) if (vr == v) { *value = m->name != 0; return HD_OK; }
+    HD_BOOLEAN_OUTPUTS(X)
+#undef X
+    return unknown_vr(vr, "Boolean", err, errlen);
+}
+
+/* NaN fails both comparisons, so it is rejected with the same message as an out-of-range value. */
+static HDStatus check_range(const char *name, double value, double lo, double hi, const char *unit, char *err,
+                            size_t errlen) {
+    if (value >= lo && value <= hi) return HD_OK;
+    snprintf(err, errlen, "%s = %g %s is outside the allowed range [%g, %g]%s", name, value, unit, lo, hi,
+             isnan(value) ? " (NaN)" : "");
+    return HD_ERROR;
+}
+
+HDStatus hd_set_real(HDModel *m, uint32_t vr, double value, char *err, size_t errlen) {
+#define X(v, name, lo, hi, start, unit) \
+    if (vr == v) { \
+        if (check_range(#name, value, lo, hi, unit, err, errlen) != HD_OK) return HD_ERROR; \
+        m->name = value; \
+        return HD_OK; \
+    }
+    HD_REAL_PARAMETERS(X)
+    HD_REAL_INPUTS(X)
+#undef X
+    if (hd_causality(vr, HD_REAL) != HD_UNKNOWN) {
+        snprintf(err, errlen, "Real value reference %u is not a parameter or input and cannot be set", (unsigned)vr);
+        return HD_ERROR;
+    }
+    return unknown_vr(vr, "Real", err, errlen);
+}
+
+HDStatus hd_set_integer(HDModel *m, uint32_t vr, int32_t value, char *err, size_t errlen) {
+#define X(v, name, lo, hi, start, unit) \
+    if (vr == v) { \
+        if (check_range(#name, (double)value, lo, hi, unit, err, errlen) != HD_OK) return HD_ERROR; \
+        m->name = value; \
+        return HD_OK; \
+    }
+    HD_INTEGER_PARAMETERS(X)
+#undef X
+    if (hd_causality(vr, HD_INTEGER) != HD_UNKNOWN) {
+        snprintf(err, errlen, "Integer value reference %u is an output and cannot be set", (unsigned)vr);
+        return HD_ERROR;
+    }
+    return unknown_vr(vr, "Integer", err, errlen);
+}
+
+static HDStatus check_all(const HDModel *m, char *err, size_t errlen) {
+#define X(v, name, lo, hi, start, unit) \
+    if (check_range(#name, (double)m->name, lo, hi, unit, err, errlen) != HD_OK) return HD_ERROR;
+    HD_REAL_PARAMETERS(X)
+    HD_REAL_INPUTS(X)
+    HD_INTEGER_PARAMETERS(X)
+#undef X
+    return HD_OK;
+}
+
+/* ---------------------------------------------------------------- stick/slip decisions ------------------- */
+
+static double deflection(const HDModel *m) { return m->r * m->q_m - m->q_l; }
+
+/* Net non-friction torque on each body: depends on positions and input only, so the two decisions are independent. */
+static double net_motor(const HDModel *m) { return m->motor_torque - m->r * m->K_s * deflection(m); }
+static double net_load(const HDModel *m) { return m->K_s * deflection(m); }
+
+/* Karnopp rule for one body at zero velocity: stick while |N| <= f, else break away in the direction of N. */
+static void decide_at_zero_velocity(double net, double level, int32_t *stuck, int32_t *dir) {
+    if (fabs(net) <= level) {
+        *stuck = 1;
+    } else {
+        *stuck = 0;
+        *dir = net > 0 ? 1 : -1;
+    }
+}
+
+/* Re-decides every body whose velocity is exactly zero; a body sliding with v != 0 keeps sliding. */
+static void settle_modes(HDModel *m) {
+    if (m->motor_stuck || m->v_m == 0.0) {
+        m->v_m = 0.0;
+        decide_at_zero_velocity(net_motor(m), m->f_m, &m->motor_stuck, &m->motor_dir);
+    }
+    if (m->load_stuck || m->v_l == 0.0) {
+        m->v_l = 0.0;
+        decide_at_zero_velocity(net_load(m), m->f_l, &m->load_stuck, &m->load_dir);
+    }
+}
+
+static void update_outputs(HDModel *m) {
+    m->spring_torque = m->K_s * deflection(m);
+    m->arm_position = m->arm_length * m->q_l;
+    double count = floor(m->q_m * (double)m->encoder_counts_per_rev / (2.0 * HD_PI));
+    if (count > 2147483647.0) count = 2147483647.0; /* int32 output: saturate rather than overflow */
+    if (count < -2147483648.0) count = -2147483648.0;
+    m->encoder_count = (int32_t)count;
+}
+
+HDStatus hd_initialize(HDModel *m, double t0, char *err, size_t errlen) {
+    if (check_all(m, err, errlen) != HD_OK) return HD_ERROR;
+    m->time = t0;
+    m->q_m = m->q_m_start;
+    m->q_l = m->q_l_start;
+    m->v_m = m->v_m_start;
+    m->v_l = m->v_l_start;
+    m->motor_stuck = m->load_stuck = 0;
+    m->motor_dir = m->v_m < 0 ? -1 : 1;
+    m->load_dir = m->v_l < 0 ? -1 : 1;
+    m->input_work = m->friction_work = 0.0;
+    m->event_count = 0;
+    settle_modes(m);
+    update_outputs(m);
+    return HD_OK;
+}
+
+/* ---------------------------------------------------------------- closed-form segment -------------------- */
+
+/* sin(x)/x, (1-cos x)/x^2, (x-sin x)/x^3, (x^2/2-1+cos x)/x^4: Taylor series near 0, where the direct forms cancel. */
+static double sinc_(double x) { return fabs(x) < 1e-4 ? 1.0 - x * x / 6.0 : sin(x) / x; }
+
+static double c1_(double x) {
+    double x2 = x * x;
+    if (fabs(x) < 0.1) return 0.5 - x2 * (1.0 / 24 - x2 * (1.0 / 720 - x2 * (1.0 / 40320 - x2 / 3628800)));
+    double s = sin(0.5 * x);
+    return 2.0 * s * s / x2;
+}
+
+static double s1_(double x) {
+    double x2 = x * x;
+    if (fabs(x) < 0.5)
+        return 1.0 / 6 - x2 * (1.0 / 120 - x2 * (1.0 / 5040 - x2 * (1.0 / 362880 - x2 * (1.0 / 39916800
+                                                                                    - x2 / 6227020800.0))));
+    return (x - sin(x)) / (x2 * x);
+}
+
+static double c2_(double x) {
+    double x2 = x * x;
+    if (fabs(x) < 0.5)
+        return 1.0 / 24 - x2 * (1.0 / 720 - x2 * (1.0 / 40320 - x2 * (1.0 / 3628800 - x2 * (1.0 / 479001600
+                                                                                    - x2 / 87178291200.0))));
+    double s = sin(0.5 * x);
+    return (0.5 * x2 - 2.0 * s * s) / (x2 * x2);
+}
+
+typedef struct {
+    int motor_slips, load_slips;
+    double F_m, F_l;  /* constant forcing on each slipping body (torque minus Coulomb friction) */
+    double w, c;      /* deflection frequency and forcing, see the file comment */
+    double d0, dd0;   /* deflection and its rate at the segment start */
+} Segment;
+
+typedef struct {
+    double q_m, q_l, v_m, v_l, dq_m, dq_l;
+} Motion;
+
+static Segment make_segment(const HDModel *m) {
+    Segment s;
+    s.motor_slips = !m->motor_stuck;
+    s.load_slips = !m->load_stuck;
+    s.F_m = m->motor_torque - m->f_m * m->motor_dir;
+    s.F_l = -m->f_l * m->load_dir;
+    double w2 = m->K_s * ((s.motor_slips ? m->r * m->r / m->J_m : 0.0) + (s.load_slips ? 1.0 / m->J_l : 0.0));
+    s.w = sqrt(w2);
+    s.c = (s.motor_slips ? m->r * s.F_m / m->J_m : 0.0) - (s.load_slips ? s.F_l / m->J_l : 0.0);
+    s.d0 = deflection(m);
+    s.dd0 = (s.motor_slips ? m->r * m->v_m : 0.0) - (s.load_slips ? m->v_l : 0.0);
+    return s;
+}
+
+/* State of the segment at local time t (t = 0 reproduces the start state exactly). */
+static Motion segment_at(const HDModel *m, const Segment *s, double t) {
+    double x = s->w * t, t2 = t * t;
+    double sn = t * sinc_(x), c1 = t2 * c1_(x), s1 = t2 * t * s1_(x), c2 = t2 * t2 * c2_(x);
+    double I1 = s->d0 * sn + s->dd0 * c1 + s->c * s1; /* integral of d over [0, t] */
+    double I2 = s->d0 * c1 + s->dd0 * s1 + s->c * c2; /* double integral of d */
+    Motion mo = {m->q_m, m->q_l, 0.0, 0.0, 0.0, 0.0};
+    if (s->motor_slips) {
+        double k = m->r * m->K_s / m->J_m;
+        mo.v_m = m->v_m + s->F_m / m->J_m * t - k * I1;
+        mo.dq_m = m->v_m * t + 0.5 * s->F_m / m->J_m * t2 - k * I2;
+        mo.q_m = m->q_m + mo.dq_m;
+    }
+    if (s->load_slips) {
+        double k = m->K_s / m->J_l;
+        mo.v_l = m->v_l + s->F_l / m->J_l * t + k * I1;
+        mo.dq_l = m->v_l * t + 0.5 * s->F_l / m->J_l * t2 + k * I2;
+        mo.q_l = m->q_l + mo.dq_l;
+    }
+    return mo;
+}
+
+/* ---------------------------------------------------------------- events --------------------------------- */
+
+typedef enum { EV_MOTOR_VELOCITY, EV_LOAD_VELOCITY, EV_MOTOR_BREAK, EV_LOAD_BREAK } EventKind;
+
+typedef struct {
+    EventKind kind;
+    double sign;   /* velocity events: -dir; break events: +1 / -1 for the two edges of the static band */
+    double level;  /* static level subtracted from a break event's signed net torque */
+    int strict;    /* break events need |N| > level strictly; velocity events fire at v == 0 */
+    double a, b, C, S; /* G(t) = a + b t + C cos(w t) + S sin(w t), for the geometry of the search only */
+} EventFn;
+
+/* G(t), evaluated through exactly the state that would be committed at t. */
+static double event_value(const HDModel *m, const Segment *s, const EventFn *e, double t) {
+    Motion mo = segment_at(m, s, t);
+    switch (e->kind) {
+    case EV_MOTOR_VELOCITY: return e->sign * mo.v_m;
+    case EV_LOAD_VELOCITY: return e->sign * mo.v_l;
+    case EV_MOTOR_BREAK: return e->sign * (m->motor_torque - m->r * m->K_s * (m->r * mo.q_m - mo.q_l)) - e->level;
+    case EV_LOAD_BREAK: return e->sign * (m->K_s * (m->r * mo.q_m - mo.q_l)) - e->level;
+    }
+    return -1.0;
+}
+
+static int fires(const HDModel *m, const Segment *s, const EventFn *e, double t) {
+    double g = event_value(m, s, e, t);
+    return e->strict ? g > 0.0 : g >= 0.0;
+}
+
+/* Smallest t in (lo, hi] where the event fires, given it does not fire at lo (lo = 0 is taken as not firing)
+ * and fires at hi, on a flank where G is monotone. Returns the firing end of the final bracket. */
+static double bisect(const HDModel *m, const Segment *s, const EventFn *e, double lo, double hi) {
+    for (int i = 0; i < 200; ++i) {
+        double mid = lo + 0.5 * (hi - lo);
+        if (mid <= lo || mid >= hi) break;
+        if (fires(m, s, e, mid)) hi = mid; else lo = mid;
+    }
+    return hi;
+}
+
+/* First time in (0, h] at which the event fires, or -1 if it does not fire in the segment. */
+static double first_firing(const HDModel *m, const Segment *s, const EventFn *e, double h) {
+    double w = s->w, R = hypot(e->C, e->S), b = e->b;
+    if (!(R > 0.0) || !(w > 0.0) || R * w <= fabs(b)) { /* G monotone over the whole segment */
+        return fires(m, s, e, h) ? bisect(m, s, e, 0.0, h) : -1.0;
+    }
+    /* G = a + b t + R cos(w t - psi); maxima where sin(w t - psi) = b/(R w) with a positive cosine. */
+    double psi = atan2(e->S, e->C), sigma = b / (R * w);
+    double th = asin(sigma), top = R * sqrt(1.0 - sigma * sigma);
+    double period = 2.0 * HD_PI / w, rise = (HD_PI + 2.0 * th) / w; /* rising flank: last minimum -> maximum */
+    double k0 = floor(-(th + psi) / (2.0 * HD_PI)) + 1.0;            /* index of the first maximum after t = 0 */
+    double k = k0;
+    if (b > 0.0) { /* heights a + b t_k + top grow with k: jump to the first that can reach zero */
+        double t_req = -(e->a + top) / b, kk = ceil((w * t_req - th - psi) / (2.0 * HD_PI)) - 1.0;
+        if (kk > k) k = kk; /* one early, in case rounding put the estimate one maximum late */
+    }
+    for (int tries = 0; tries < 4; ++tries, k += 1.0) {
+        double t_max = (th + psi + 2.0 * HD_PI * k) / w;
+        if (t_max <= 0.0) t_max = (th + psi + 2.0 * HD_PI * (k + 1.0)) / w;
+        double lo = t_max - rise > 0.0 ? t_max - rise : 0.0;
+        if (lo >= h) return -1.0;
+        if (t_max >= h) return fires(m, s, e, h) ? bisect(m, s, e, lo, h) : -1.0;
+        if (fires(m, s, e, t_max)) {
+            if (lo > 0.0 && fires(m, s, e, lo)) return bisect(m, s, e, 0.0, lo); /* rounding guard */
+            return bisect(m, s, e, lo, t_max);
+        }
+        if (b <= 0.0) return -1.0; /* later maxima are no higher */
+    }
+    /* The analytic estimate was off by more than rounding: fall back to scanning maxima one by one. */
+    for (double t_max = (th + psi + 2.0 * HD_PI * k) / w; t_max < h; t_max += period) {
+        if (fires(m, s, e, t_max)) return bisect(m, s, e, t_max - rise > 0.0 ? t_max - rise : 0.0, t_max);
+    }
+    return fires(m, s, e, h) ? bisect(m, s, e, 0.0, h) : -1.0;
+}
+
+/* Coefficients of the deflection d(t) = Da + Dc cos(w t) + Ds sin(w t). */
+static void deflection_coefficients(const Segment *s, double *Da, double *Dc, double *Ds) {
+    *Da = s->c / (s->w * s->w);
+    *Dc = s->d0 - *Da;
+    *Ds = s->dd0 / s->w;
+}
+
+static EventFn velocity_event(const HDModel *m, const Segment *s, int motor) {
+    double Da, Dc, Ds;
+    deflection_coefficients(s, &Da, &Dc, &Ds);
+    /* v(t) = v0 + (F + g Da) t / J + g (Dc sin(w t) + Ds (1 - cos(w t))) / (J w), g = -r K_s (motor) or K_s (load) */
+    double J = motor ? m->J_m : m->J_l, g = motor ? -m->r * m->K_s : m->K_s;
+    double v0 = motor ? m->v_m : m->v_l, F = motor ? s->F_m : s->F_l, dir = motor ? m->motor_dir : m->load_dir;
+    EventFn e;
+    e.kind = motor ? EV_MOTOR_VELOCITY : EV_LOAD_VELOCITY;
+    e.sign = -dir;
+    e.level = 0.0;
+    e.strict = 0;
+    e.a = e.sign * (v0 + g * Ds / (J * s->w));
+    e.b = e.sign * (F + g * Da) / J;
+    e.C = e.sign * (-g * Ds / (J * s->w));
+    e.S = e.sign * (g * Dc / (J * s->w));
+    return e;
+}
+
+static EventFn break_event(const HDModel *m, const Segment *s, int motor, double sign) {
+    double Da, Dc, Ds;
+    deflection_coefficients(s, &Da, &Dc, &Ds);
+    /* N(t) = N0 + g d(t): motor N = T - r K_s d, load N = K_s d */
+    double N0 = motor ? m->motor_torque : 0.0, g = motor ? -m->r * m->K_s : m->K_s;
+    EventFn e;
+    e.kind = motor ? EV_MOTOR_BREAK : EV_LOAD_BREAK;
+    e.sign = sign;
+    e.level = motor ? m->f_m : m->f_l;
+    e.strict = 1;
+    e.a = sign * (N0 + g * Da) - e.level;
+    e.b = 0.0;
+    e.C = sign * g * Dc;
+    e.S = sign * g * Ds;
+    return e;
+}
+
+/* The events that can end the current segment. A body without friction never sticks, so its velocity is no event. */
+static int segment_events(const HDModel *m, const Segment *s, EventFn *ev) {
+    int n = 0;
+    if (s->motor_slips && m->f_m > 0.0) ev[n++] = velocity_event(m, s, 1);
+    if (s->load_slips && m->f_l > 0.0) ev[n++] = velocity_event(m, s, 0);
+    if (!s->motor_slips) { ev[n++] = break_event(m, s, 1, 1.0); ev[n++] = break_event(m, s, 1, -1.0); }
+    if (!s->load_slips) { ev[n++] = break_event(m, s, 0, 1.0); ev[n++] = break_event(m, s, 0, -1.0); }
+    return n;
+}
+
+static void commit(HDModel *m, const Segment *s, const Motion *mo) {
+    m->input_work += m->motor_torque * mo->dq_m;
+    m->friction_work += (s->motor_slips ? m->f_m * m->motor_dir * mo->dq_m : 0.0)
+                      + (s->load_slips ? m->f_l * m->load_dir * mo->dq_l : 0.0);
+    m->q_m = mo->q_m;
+    m->q_l = mo->q_l;
+    m->v_m = mo->v_m;
+    m->v_l = mo->v_l;
+}
+
+static int state_finite(const HDModel *m) {
+    return isfinite(m->q_m) && isfinite(m->q_l) && isfinite(m->v_m) && isfinite(m->v_l) && isfinite(m->input_work)
+        && isfinite(m->friction_work);
+}
+
+HDStatus hd_do_step(HDModel *m, double h, char *err, size_t errlen) {
+    if (!(h >= 0.0) || !isfinite(h)) {
+        snprintf(err, errlen, "communication step size %g s must be finite and >= 0", h);
+        return HD_ERROR;
+    }
+    if (!isfinite(m->motor_torque)) {
+        snprintf(err, errlen, "motor_torque = %g N.m is not finite", m->motor_torque);
+        return HD_ERROR;
+    }
+    HDModel work = *m; /* advance a copy: on error the caller's state is untouched */
+    settle_modes(&work); /* the torque may have changed since the last step */
+    double t = 0.0;
+    long events = 0;
+    while (t < h && !(work.motor_stuck && work.load_stuck)) {
+        Segment s = make_segment(&work);
+        EventFn ev[6];
+        int n = segment_events(&work, &s, ev);
+        double rest = h - t, t_event = rest;
+        int which = -1;
+        for (int i = 0; i < n; ++i) {
+            double te = first_firing(&work, &s, &ev[i], t_event);
+            if (te > 0.0 && te <= t_event && (which < 0 || te < t_event)) { t_event = te; which = i; }
+        }
+        Motion mo = segment_at(&work, &s, t_event);
+        commit(&work, &s, &mo);
+        t = which < 0 ? h : t + t_event;
+        if (which >= 0) {
+            if (ev[which].kind == EV_MOTOR_VELOCITY) work.v_m = 0.0;
+            if (ev[which].kind == EV_LOAD_VELOCITY) work.v_l = 0.0;
+            settle_modes(&work);
+            work.event_count++;
+            if (++events > HD_MAX_EVENTS_PER_STEP) {
+                snprintf(err, errlen, "more than %ld switching events in one step of %g s (Zeno behaviour)",
+                         HD_MAX_EVENTS_PER_STEP, h);
+                return HD_ERROR;
+            }
+        }
+        if (!state_finite(&work)) {
+            snprintf(err, errlen, "the state overflowed during a step of %g s at t = %g s; use smaller torques or "
+                                  "steps", h, m->time);
+            return HD_ERROR;
+        }
+    }
+    work.time = m->time + h;
+    update_outputs(&work);
+    *m = work;
+    return HD_OK;
+}

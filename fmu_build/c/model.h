@@ -1,0 +1,69 @@
+/* HarmonicDrive plant: the physics, independent of any FMI version.
+ *
+ * Two inertias (motor J_m, load J_l) joined by a gear ratio r (= q_l/q_m at rest, r < 1) and a torsional spring
+ * K_s on the load-side deflection d = r q_m - q_l, with exact (Karnopp) stick-slip friction on both sides:
+ *
+ *     J_m q_m'' = T - F_m - r K_s d          J_l q_l'' = K_s d - F_l
+ *
+ * Between switching events the equations are linear with constant forcing, so every segment is solved in closed
+ * form and every event (a slipping body's velocity reaching zero, a stuck body's net torque leaving its static
+ * band) is located as the first root of a known function. See model.c.
+ *
+ * All the state of one instance lives in HDModel: no globals, instances are independent, and copying the struct
+ * copies the complete simulation state (used for FMU state get/set/serialize).
+ */
+#ifndef HD_MODEL_H
+#define HD_MODEL_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "model_vars.h" /* generated from fmu_build/variables.py: value references, ranges, start values */
+
+typedef enum { HD_OK = 0, HD_ERROR = 1 } HDStatus;
+
+typedef struct {
+    /* Parameters (SI). Names equal the FMU variable names. */
+    double J_m, f_m, K_s, J_l, f_l, r, arm_length;
+    int32_t encoder_counts_per_rev;
+    double q_m_start, q_l_start, v_m_start, v_l_start;
+
+    /* Input: motor torque [N m], held constant over a communication step. */
+    double motor_torque;
+
+    /* Continuous and discrete state. */
+    double time;
+    double q_m, q_l, v_m, v_l;
+    int32_t motor_stuck, load_stuck;   /* 1 while the body sticks (its velocity is then exactly 0) */
+    int32_t motor_dir, load_dir;       /* +1 / -1: slip direction while slipping */
+    double input_work, friction_work;  /* [J], accumulated exactly per segment */
+    int64_t event_count;               /* switching events handled since initialization */
+
+    /* Outputs derived from the state (refreshed after every change). */
+    double spring_torque, arm_position;
+    int32_t encoder_count;
+} HDModel;
+
+/* Causality of a value reference, as in the variable table. */
+typedef enum { HD_UNKNOWN = 0, HD_INDEPENDENT, HD_PARAMETER, HD_INPUT, HD_OUTPUT } HDCausality;
+typedef enum { HD_REAL = 0, HD_INTEGER, HD_BOOLEAN } HDType;
+
+void hd_set_defaults(HDModel *m);
+HDCausality hd_causality(uint32_t vr, HDType type);
+
+/* Accessors by value reference. On failure they write a message naming the variable (and the allowed range)
+ * into err and return HD_ERROR; the model is left unchanged. */
+HDStatus hd_get_real(const HDModel *m, uint32_t vr, double *value, char *err, size_t errlen);
+HDStatus hd_get_integer(const HDModel *m, uint32_t vr, int32_t *value, char *err, size_t errlen);
+HDStatus hd_get_boolean(const HDModel *m, uint32_t vr, int *value, char *err, size_t errlen);
+HDStatus hd_set_real(HDModel *m, uint32_t vr, double value, char *err, size_t errlen);
+HDStatus hd_set_integer(HDModel *m, uint32_t vr, int32_t value, char *err, size_t errlen);
+
+/* Checks every parameter, then sets the state from the *_start parameters at time t0. */
+HDStatus hd_initialize(HDModel *m, double t0, char *err, size_t errlen);
+
+/* Advances the plant by h seconds with the current motor_torque held. Exact stick-slip inside.
+ * On error the model is left as it was before the call. */
+HDStatus hd_do_step(HDModel *m, double h, char *err, size_t errlen);
+
+#endif

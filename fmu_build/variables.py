@@ -1,0 +1,102 @@
+"""THE variable table of the HarmonicDrive plant.
+
+Every other description of the plant's interface is generated from or checked against this table:
+both modelDescription.xml files (FMI 2.0 and 3.0), the C header ``model_vars.h`` that the C model and the FMI
+glue use for value references, start values and allowed ranges, the parameter handling of ``ident.params``, and
+the test that holds ``modelica/HarmonicDrive`` to the same names, units and start values.
+
+All values are SI; time is in seconds. The nominal drive of ``shared/docs/physics.md`` section 2 gives the start
+values (f_l = f_l* f_m = 0.1 * 0.01 N m).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+VarType = Literal["Real", "Integer", "Boolean"]
+Causality = Literal["independent", "parameter", "input", "output"]
+
+INT32_MAX = 2**31 - 1
+
+
+@dataclass(frozen=True)
+class Variable:
+    """One FMU variable. ``lo``/``hi`` are the allowed (inclusive) range checked by the FMU and by Python."""
+
+    name: str
+    vr: int
+    type: VarType
+    causality: Causality
+    unit: str | None
+    start: float | int | bool | None
+    lo: float | None
+    hi: float | None
+    description: str
+
+    @property
+    def c_name(self) -> str:
+        return self.name
+
+
+def _param(name: str, vr: int, start: float, lo: float, hi: float, unit: str | None, desc: str,
+           type_: VarType = "Real") -> Variable:
+    return Variable(name, vr, type_, "parameter", unit, start, lo, hi, desc)
+
+
+def _out(name: str, vr: int, unit: str | None, desc: str, type_: VarType = "Real") -> Variable:
+    return Variable(name, vr, type_, "output", unit, None, None, None, desc)
+
+
+# Value references: 0 time, 1-19 drive parameters, 20-29 initial state, 30 input, 40-59 outputs,
+# 100+ reserved for the optional effect parameters of the discrepancy library (default off).
+VARIABLES: tuple[Variable, ...] = (
+    Variable("time", 0, "Real", "independent", "s", None, None, None, "Simulation time"),
+    _param("J_m", 1, 2e-5, 1e-12, 1e3, "kg.m2", "Motor + wave-generator inertia"),
+    _param("f_m", 2, 0.01, 0.0, 1e6, "N.m", "Motor-side Coulomb (= static) friction level"),
+    _param("K_s", 3, 1.0e4, 1e-3, 1e15, "N.m/rad", "Torsional stiffness of the flexspline (load side)"),
+    _param("J_l", 4, 0.05, 1e-12, 1e6, "kg.m2", "Flexspline + arm inertia"),
+    _param("f_l", 5, 1e-3, 0.0, 1e6, "N.m", "Load-side Coulomb (= static) friction level"),
+    _param("r", 6, 0.01, 1e-6, 1.0, "1", "Gear ratio q_l/q_m at rest (r < 1: 0.01 is a 100:1 drive)"),
+    _param("encoder_counts_per_rev", 7, 12566, 1, INT32_MAX, None, "Motor encoder counts per motor revolution",
+           type_="Integer"),
+    _param("arm_length", 8, 0.3, 1e-6, 1e3, "m", "Arm length: arm_position = arm_length * q_l"),
+    _param("q_m_start", 20, 0.0, -1e6, 1e6, "rad", "Initial motor angle"),
+    _param("q_l_start", 21, 0.0, -1e6, 1e6, "rad", "Initial load angle"),
+    _param("v_m_start", 22, 0.0, -1e6, 1e6, "rad/s", "Initial motor velocity"),
+    _param("v_l_start", 23, 0.0, -1e6, 1e6, "rad/s", "Initial load velocity"),
+    Variable("motor_torque", 30, "Real", "input", "N.m", 0.0, -1e6, 1e6,
+             "Motor torque T_m, held constant over each communication step"),
+    _out("q_m", 40, "rad", "Motor angle"),
+    _out("q_l", 41, "rad", "Load (arm) angle"),
+    _out("v_m", 42, "rad/s", "Motor velocity"),
+    _out("v_l", 43, "rad/s", "Load velocity"),
+    _out("spring_torque", 44, "N.m", "Spring torque K_s (r q_m - q_l) on the load"),
+    _out("motor_stuck", 45, None, "Motor is stuck (zero velocity, net torque within its static level)", "Boolean"),
+    _out("load_stuck", 46, None, "Load is stuck (zero velocity, net torque within its static level)", "Boolean"),
+    _out("encoder_count", 47, None, "Motor encoder count floor(q_m / (2 pi / counts_per_rev)), saturated to int32",
+         "Integer"),
+    _out("arm_position", 48, "m", "Arm tip position arm_length * q_l"),
+    _out("input_work", 49, "J", "Work done by the motor torque since the start (exact per segment)"),
+    _out("friction_work", 50, "J", "Energy dissipated by friction since the start (exact per segment)"),
+)
+
+BY_NAME: dict[str, Variable] = {v.name: v for v in VARIABLES}
+PARAMETERS: tuple[Variable, ...] = tuple(v for v in VARIABLES if v.causality == "parameter")
+INPUTS: tuple[Variable, ...] = tuple(v for v in VARIABLES if v.causality == "input")
+OUTPUTS: tuple[Variable, ...] = tuple(v for v in VARIABLES if v.causality == "output")
+
+# Base units of every unit used in the table, for the <UnitDefinitions> of both modelDescriptions.
+UNITS: dict[str, dict[str, int]] = {
+    "s": {"s": 1},
+    "rad": {"rad": 1},
+    "rad/s": {"rad": 1, "s": -1},
+    "N.m": {"kg": 1, "m": 2, "s": -2},
+    "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1},
+    "kg.m2": {"kg": 1, "m": 2},
+    "m": {"m": 1},
+    "J": {"kg": 1, "m": 2, "s": -2},
+    "1": {},
+}
+
+MODEL_IDENTIFIER = "HarmonicDrive"
+MODEL_NAME = "HarmonicDrive"

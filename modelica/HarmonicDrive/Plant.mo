@@ -1,0 +1,138 @@
+within HarmonicDrive;
+model Plant "Harmonic-drive plant: two inertias, gear ratio r = q_l/q_m, flexspline spring, exact Karnopp stick-slip"
+  // Interface: names, types, units, start values and ranges are those of fmu_build/variables.py (the FMU's table).
+  // One declaration per line: tests/test_modelica.py reads them.
+
+  // Drive parameters
+  parameter Real J_m(unit = "kg.m2", min = 1e-12, max = 1e3) = 2e-5 "Motor + wave-generator inertia";
+  parameter Real f_m(unit = "N.m", min = 0.0, max = 1e6) = 0.01 "Motor-side Coulomb (= static) friction level";
+  parameter Real K_s(unit = "N.m/rad", min = 1e-3, max = 1e15) = 1.0e4 "Torsional stiffness of the flexspline (load side)";
+  parameter Real J_l(unit = "kg.m2", min = 1e-12, max = 1e6) = 0.05 "Flexspline + arm inertia";
+  parameter Real f_l(unit = "N.m", min = 0.0, max = 1e6) = 1e-3 "Load-side Coulomb (= static) friction level";
+  parameter Real r(unit = "1", min = 1e-6, max = 1.0) = 0.01 "Gear ratio q_l/q_m at rest (r < 1: 0.01 is a 100:1 drive)";
+  parameter Integer encoder_counts_per_rev(min = 1, max = 2147483647) = 12566 "Motor encoder counts per motor revolution";
+  parameter Real arm_length(unit = "m", min = 1e-6, max = 1e3) = 0.3 "Arm length: arm_position = arm_length * q_l";
+
+  // Initial state
+  parameter Real q_m_start(unit = "rad", min = -1e6, max = 1e6) = 0.0 "Initial motor angle";
+  parameter Real q_l_start(unit = "rad", min = -1e6, max = 1e6) = 0.0 "Initial load angle";
+  parameter Real v_m_start(unit = "rad/s", min = -1e6, max = 1e6) = 0.0 "Initial motor velocity";
+  parameter Real v_l_start(unit = "rad/s", min = -1e6, max = 1e6) = 0.0 "Initial load velocity";
+
+  // Input
+  input Real motor_torque(unit = "N.m", min = -1e6, max = 1e6, start = 0.0) "Motor torque T_m, held constant over each communication step";
+
+  // Outputs
+  output Real q_m(unit = "rad") "Motor angle";
+  output Real q_l(unit = "rad") "Load (arm) angle";
+  output Real v_m(unit = "rad/s") "Motor velocity";
+  output Real v_l(unit = "rad/s") "Load velocity";
+  output Real spring_torque(unit = "N.m") "Spring torque K_s (r q_m - q_l) on the load";
+  output Boolean motor_stuck "Motor is stuck (zero velocity, net torque within its static level)";
+  output Boolean load_stuck "Load is stuck (zero velocity, net torque within its static level)";
+  output Integer encoder_count "Motor encoder count floor(q_m / (2 pi / counts_per_rev)), saturated to int32";
+  output Real arm_position(unit = "m") "Arm tip position arm_length * q_l";
+  output Real input_work(unit = "J") "Work done by the motor torque since the start";
+  output Real friction_work(unit = "J") "Energy dissipated by friction since the start";
+
+protected
+  constant Real pi = 3.14159265358979323846;
+  Real d(unit = "rad") "Spring deflection r q_m - q_l (load side)";
+  Real tau_m(unit = "N.m") "Net non-friction torque on the motor";
+  Real tau_l(unit = "N.m") "Net non-friction torque on the load";
+  Real F_m(unit = "N.m") "Motor friction torque (acts as -F_m on the motor)";
+  Real F_l(unit = "N.m") "Load friction torque (acts as -F_l on the load)";
+  discrete Integer mode_m "Motor friction state: 0 stuck, +1 slipping forwards, -1 slipping backwards";
+  discrete Integer mode_l "Load friction state: 0 stuck, +1 slipping forwards, -1 slipping backwards";
+
+initial equation
+  q_m = q_m_start;
+  q_l = q_l_start;
+  v_m = v_m_start;
+  v_l = v_l_start;
+  input_work = 0;
+  friction_work = 0;
+  // Karnopp at t = 0: a moving body slips with its velocity; a body at rest sticks unless its net torque exceeds
+  // its static level, then it breaks away in the direction of that torque.
+  mode_m = if v_m_start > 0 then 1 elseif v_m_start < 0 then -1 elseif abs(tau_m) <= f_m then 0 elseif tau_m > 0 then 1 else -1;
+  mode_l = if v_l_start > 0 then 1 elseif v_l_start < 0 then -1 elseif abs(tau_l) <= f_l then 0 elseif tau_l > 0 then 1 else -1;
+
+equation
+  d = r*q_m - q_l;
+  spring_torque = K_s*d;
+  tau_m = motor_torque - r*spring_torque;
+  tau_l = spring_torque;
+
+  // Friction: a stuck body's friction balances its net torque exactly (so its velocity stays exactly zero);
+  // a slipping body's friction is its Coulomb level against the slip direction.
+  F_m = if mode_m == 0 then tau_m else f_m*mode_m;
+  F_l = if mode_l == 0 then tau_l else f_l*mode_l;
+
+  der(q_m) = v_m;
+  der(q_l) = v_l;
+  J_m*der(v_m) = tau_m - F_m;
+  J_l*der(v_l) = tau_l - F_l;
+
+  // The state machine (Karnopp). Each body re-decides whenever
+  //   - it is stuck and |net non-friction torque| exceeds its static level (breakaway), or
+  //   - it is slipping and its velocity reaches zero (the crossing against the slip direction).
+  // The decision is the same in both cases: stick if |tau| <= f, else slip in the direction of tau.
+  // The velocity is set to exactly zero at every decision (it is zero, up to the event tolerance, there).
+  when (pre(mode_m) == 0 and abs(tau_m) > f_m) or (pre(mode_m) == 1 and v_m < 0) or (pre(mode_m) == -1 and v_m > 0) then
+    mode_m = if abs(tau_m) <= f_m then 0 elseif tau_m > 0 then 1 else -1;
+    reinit(v_m, 0);
+  end when;
+  when (pre(mode_l) == 0 and abs(tau_l) > f_l) or (pre(mode_l) == 1 and v_l < 0) or (pre(mode_l) == -1 and v_l > 0) then
+    mode_l = if abs(tau_l) <= f_l then 0 elseif tau_l > 0 then 1 else -1;
+    reinit(v_l, 0);
+  end when;
+  motor_stuck = mode_m == 0;
+  load_stuck = mode_l == 0;
+
+  // Outputs
+  encoder_count = integer(max(min(floor(q_m*encoder_counts_per_rev/(2*pi)), 2147483647.0), -2147483648.0));
+  arm_position = arm_length*q_l;
+  der(input_work) = motor_torque*v_m;
+  der(friction_work) = F_m*v_m + F_l*v_l;
+
+  annotation (Documentation(info = "<html>
+<p>
+The harmonic-drive stick-slip plant: the Modelica twin of the C plant in <code>fmu_build/c</code> exported as
+<code>HarmonicDrive.fmu</code> (FMI 2.0 / 3.0). It has the same parameter, input and output names, types,
+units, start values and ranges (<code>fmu_build/variables.py</code>); <code>tests/test_modelica.py</code> checks
+them against the FMU's modelDescription.xml.
+</p>
+<p>
+Convention: r = q_l/q_m at rest (r &lt; 1), deflection d = r q_m - q_l,
+</p>
+<pre>
+  J_m q_m'' = motor_torque - F_m - r K_s d
+  J_l q_l'' = K_s d - F_l
+</pre>
+<p>
+spring_torque = K_s d, arm_position = arm_length q_l, encoder_count = floor(q_m/(2 pi/encoder_counts_per_rev))
+saturated to the Integer (int32) range, input_work = integral of motor_torque v_m dt, friction_work = integral of
+(F_m v_m + F_l v_l) dt (the energy friction dissipates, never negative).
+</p>
+<h4>Stick-slip: an explicit state machine</h4>
+<p>
+Friction is modelled by an explicit Karnopp state machine per body (a discrete Integer mode: 0 stuck, +1 / -1
+slipping forwards / backwards) driven by <code>when</code> clauses with <code>reinit</code>, not by the
+Modelica Standard Library's <code>BearingFriction</code> / <code>PartialFriction</code>: the library needs no
+other library, the friction law is exactly the one of the C plant (static level = Coulomb level, no Stribeck
+curve, no viscous term), and the decision rule reads like the C code:
+</p>
+<ul>
+<li>stuck: the friction torque equals the net non-friction torque tau (tau_m = motor_torque - r K_s d on the
+motor, tau_l = K_s d on the load), so the acceleration and velocity are exactly zero;</li>
+<li>slipping: the friction torque is f times the slip direction;</li>
+<li>when a stuck body's |tau| exceeds its level f, or a slipping body's velocity reaches zero, the body decides:
+stick if |tau| &lt;= f, else slip in the direction of tau (breakaway or reversal); its velocity is reset to 0.</li>
+</ul>
+<p>
+Nothing creeps or chatters at rest. The C plant solves every segment in closed form and locates the events as
+roots of known functions; a Modelica tool integrates numerically, so its results agree with the FMU to the
+integration and event tolerances.
+</p>
+</html>"));
+end Plant;
