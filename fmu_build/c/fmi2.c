@@ -28,7 +28,16 @@ static void log_msg(Instance *in, fmi2Status status, const char *category, const
     va_start(ap, fmt);
     vsnprintf(buf, sizeof buf, fmt, ap);
     va_end(ap);
-    in->cb.logger(in->cb.componentEnvironment, in->name, status, category, "%s", buf);
+    /* The message is passed as the format itself (with '%' doubled), so that importers whose logger cannot
+     * expand C varargs (e.g. ctypes callbacks) still receive the whole text. */
+    char fmt_safe[1024];
+    size_t j = 0;
+    for (size_t i = 0; buf[i] && j + 2 < sizeof fmt_safe; ++i) {
+        if (buf[i] == '%') fmt_safe[j++] = '%';
+        fmt_safe[j++] = buf[i];
+    }
+    fmt_safe[j] = '\0';
+    in->cb.logger(in->cb.componentEnvironment, in->name, status, category, fmt_safe);
 }
 
 static fmi2Status fail(Instance *in, const char *where, const char *msg) {

@@ -20,7 +20,7 @@
 #include <string.h>
 
 #define HD_PI 3.14159265358979323846
-#define HD_MAX_EVENTS_PER_STEP 10000000L
+#define HD_MAX_EVENTS_PER_STEP 2000000L
 
 /* ---------------------------------------------------------------- parameters and variable access --------- */
 
@@ -210,9 +210,7 @@ HDStatus hd_initialize(HDModel *m, double t0, char *err, size_t errlen) {
 
 /* ---------------------------------------------------------------- closed-form segment -------------------- */
 
-/* sin(x)/x, (1-cos x)/x^2, (x-sin x)/x^3, (x^2/2-1+cos x)/x^4: Taylor series near 0, where the direct forms cancel. */
-static double sinc_(double x) { return fabs(x) < 1e-4 ? 1.0 - x * x / 6.0 : sin(x) / x; }
-
+/* (1-cos x)/x^2, (x-sin x)/x^3, (x^2/2-1+cos x)/x^4: Taylor series near 0, where the direct forms cancel. */
 static double c1_(double x) {
     double x2 = x * x;
     if (fabs(x) < 0.1) return 0.5 - x2 * (1.0 / 24 - x2 * (1.0 / 720 - x2 * (1.0 / 40320 - x2 / 3628800)));
@@ -242,6 +240,8 @@ typedef struct {
     double F_m, F_l;  /* constant forcing on each slipping body (torque minus Coulomb friction) */
     double w, c;      /* deflection frequency and forcing, see the file comment */
     double d0, dd0;   /* deflection and its rate at the segment start */
+    double a_m0, a_l0; /* accelerations at the start, from the same net torques as the stick/slip decision */
+    double e;         /* d''(0) = r a_m0 - a_l0: drives the deflection's departure from d0 */
 } Segment;
 
 typedef struct {
@@ -259,26 +259,32 @@ static Segment make_segment(const HDModel *m) {
     s.c = (s.motor_slips ? m->r * s.F_m / m->J_m : 0.0) - (s.load_slips ? s.F_l / m->J_l : 0.0);
     s.d0 = deflection(m);
     s.dd0 = (s.motor_slips ? m->r * m->v_m : 0.0) - (s.load_slips ? m->v_l : 0.0);
+    /* Net torque minus friction, as in the decision: a body that just broke away (|N| > f as doubles) gets an
+     * acceleration of the right sign exactly, so it cannot "return to zero velocity" through rounding. */
+    s.a_m0 = s.motor_slips ? (net_motor(m) - m->f_m * m->motor_dir) / m->J_m : 0.0;
+    s.a_l0 = s.load_slips ? (net_load(m) - m->f_l * m->load_dir) / m->J_l : 0.0;
+    s.e = m->r * s.a_m0 - s.a_l0;
     return s;
 }
 
-/* State of the segment at local time t (t = 0 reproduces the start state exactly). */
+/* State of the segment at local time t (t = 0 reproduces the start state exactly). Written as the start
+ * acceleration plus the integrals of the deflection's departure d(t) - d0 = dd0 t sinc(w t) + e t^2 c1(w t). */
 static Motion segment_at(const HDModel *m, const Segment *s, double t) {
     double x = s->w * t, t2 = t * t;
-    double sn = t * sinc_(x), c1 = t2 * c1_(x), s1 = t2 * t * s1_(x), c2 = t2 * t2 * c2_(x);
-    double I1 = s->d0 * sn + s->dd0 * c1 + s->c * s1; /* integral of d over [0, t] */
-    double I2 = s->d0 * c1 + s->dd0 * s1 + s->c * c2; /* double integral of d */
+    double c1 = t2 * c1_(x), s1 = t2 * t * s1_(x), c2 = t2 * t2 * c2_(x);
+    double J1 = s->e * s1 + s->dd0 * c1; /* integral of d - d0 over [0, t] */
+    double J2 = s->e * c2 + s->dd0 * s1; /* double integral of d - d0 */
     Motion mo = {m->q_m, m->q_l, 0.0, 0.0, 0.0, 0.0};
     if (s->motor_slips) {
         double k = m->r * m->K_s / m->J_m;
-        mo.v_m = m->v_m + s->F_m / m->J_m * t - k * I1;
-        mo.dq_m = m->v_m * t + 0.5 * s->F_m / m->J_m * t2 - k * I2;
+        mo.v_m = m->v_m + s->a_m0 * t - k * J1;
+        mo.dq_m = m->v_m * t + 0.5 * s->a_m0 * t2 - k * J2;
         mo.q_m = m->q_m + mo.dq_m;
     }
     if (s->load_slips) {
         double k = m->K_s / m->J_l;
-        mo.v_l = m->v_l + s->F_l / m->J_l * t + k * I1;
-        mo.dq_l = m->v_l * t + 0.5 * s->F_l / m->J_l * t2 + k * I2;
+        mo.v_l = m->v_l + s->a_l0 * t + k * J1;
+        mo.dq_l = m->v_l * t + 0.5 * s->a_l0 * t2 + k * J2;
         mo.q_l = m->q_l + mo.dq_l;
     }
     return mo;
@@ -458,7 +464,7 @@ HDStatus hd_do_step(HDModel *m, double h, char *err, size_t errlen) {
             settle_modes(&work);
             work.event_count++;
             if (++events > HD_MAX_EVENTS_PER_STEP) {
-                snprintf(err, errlen, "more than %ld switching events in one step of %g s (Zeno behaviour)",
+                snprintf(err, errlen, "more than %ld switching events in one step of %g s; use shorter communication steps",
                          HD_MAX_EVENTS_PER_STEP, h);
                 return HD_ERROR;
             }

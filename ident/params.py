@@ -1,0 +1,132 @@
+"""Drive parameters: SI values, the paper's non-dimensional groups, validation, the nominal drive.
+
+Names, units, start values and allowed ranges come from the FMU's variable table (``fmu_build.variables``), so the
+Python side and the C side can never disagree on what a valid drive is.
+
+Non-dimensional groups (paper eqs 7-18): T_c = sqrt(J_m/f_m) [s], K* = K_s/f_m [1/rad], J_l* = J_l/J_m,
+f_l* = f_l/f_m, tau* = T_m/f_m, r* = r.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any
+
+from fmu_build import variables as V
+
+
+class ParameterError(ValueError):
+    """A drive parameter is unknown, not a finite number, or outside its allowed range."""
+
+
+def check_parameter(name: str, value: Any) -> float | int:
+    """Validate one FMU parameter by name against the variable table; returns the value as float (or int)."""
+    var = V.BY_NAME.get(name)
+    if var is None or var.causality != "parameter":
+        known = ", ".join(v.name for v in V.PARAMETERS)
+        raise ParameterError(f"unknown drive parameter {name!r}; known parameters: {known}")
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{name} = {value!r} is not a number") from None
+    unit = f" {var.unit}" if var.unit else ""
+    if not (var.lo <= number <= var.hi):  # also rejects NaN
+        raise ParameterError(f"{name} = {value!r}{unit} is outside the allowed range [{var.lo:g}, {var.hi:g}]{unit}")
+    if var.type == "Integer":
+        if number != int(number):
+            raise ParameterError(f"{name} = {value!r} must be a whole number")
+        return int(number)
+    return number
+
+
+@dataclass(frozen=True)
+class DriveParams:
+    """SI parameters of one harmonic-drive joint. Defaults are the nominal drive of physics.md section 2."""
+
+    J_m: float = V.BY_NAME["J_m"].start       # kg m^2, motor + wave generator
+    f_m: float = V.BY_NAME["f_m"].start       # N m, motor Coulomb = static friction
+    K_s: float = V.BY_NAME["K_s"].start       # N m/rad, torsional stiffness (load side)
+    J_l: float = V.BY_NAME["J_l"].start       # kg m^2, flexspline + arm
+    f_l: float = V.BY_NAME["f_l"].start       # N m, load Coulomb = static friction
+    r: float = V.BY_NAME["r"].start           # gear ratio q_l/q_m (< 1)
+    encoder_counts_per_rev: int = V.BY_NAME["encoder_counts_per_rev"].start
+    arm_length: float = V.BY_NAME["arm_length"].start  # m
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            object.__setattr__(self, f.name, check_parameter(f.name, getattr(self, f.name)))
+
+    # -- non-dimensional view -------------------------------------------------------------------------------
+    @property
+    def T_c(self) -> float:
+        """Characteristic time sqrt(J_m/f_m) [s] (needs f_m > 0)."""
+        if self.f_m <= 0:
+            raise ParameterError("f_m must be > 0 for the non-dimensional form (T_c = sqrt(J_m/f_m))")
+        return math.sqrt(self.J_m / self.f_m)
+
+    @property
+    def K_star(self) -> float:
+        return self.K_s / self.f_m
+
+    @property
+    def J_l_star(self) -> float:
+        return self.J_l / self.J_m
+
+    @property
+    def f_l_star(self) -> float:
+        return self.f_l / self.f_m
+
+    @property
+    def count_rad(self) -> float:
+        """One motor encoder count [rad of motor angle]."""
+        return 2.0 * math.pi / self.encoder_counts_per_rev
+
+    @property
+    def count_at_arm_m(self) -> float:
+        """One motor encoder count seen at the arm tip [m] (1.50 um on the nominal drive)."""
+        return self.count_rad * self.r * self.arm_length
+
+    @classmethod
+    def nominal(cls) -> "DriveParams":
+        return cls()
+
+    @classmethod
+    def from_nondim(cls, K_star: float, J_l_star: float, f_l_star: float, *, J_m: float | None = None,
+                    f_m: float | None = None, **si: Any) -> "DriveParams":
+        """Build from K*, J_l*, f_l* with the motor's J_m and f_m given (nominal ones by default)."""
+        J_m = cls.J_m if J_m is None else J_m
+        f_m = cls.f_m if f_m is None else f_m
+        for name, value in (("K_star", K_star), ("J_l_star", J_l_star), ("f_l_star", f_l_star)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ParameterError(f"{name} = {value!r} must be a finite number >= 0")
+        return cls(J_m=J_m, f_m=f_m, K_s=K_star * f_m, J_l=J_l_star * J_m, f_l=f_l_star * f_m, **si)
+
+    def with_values(self, **changes: Any) -> "DriveParams":
+        """A copy with some SI parameters or non-dimensional groups (K_star, J_l_star, f_l_star) changed."""
+        nondim = {k: changes.pop(k) for k in ("K_star", "J_l_star", "f_l_star") if k in changes}
+        unknown = set(changes) - {f.name for f in fields(self)}
+        if unknown:
+            check_parameter(sorted(unknown)[0], 0.0)  # raises with the list of known names
+        p = replace(self, **changes)
+        if nondim:
+            f_m, J_m = p.f_m, p.J_m
+            p = replace(p, K_s=nondim.get("K_star", p.K_star) * f_m, J_l=nondim.get("J_l_star", p.J_l_star) * J_m,
+                        f_l=nondim.get("f_l_star", p.f_l_star) * f_m)
+        return p
+
+    def to_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+
+def parse_assignments(items: list[str] | None) -> dict[str, float]:
+    """Parse CLI ``NAME=VALUE`` items; NAME may be an SI parameter or K_star / J_l_star / f_l_star."""
+    out: dict[str, float] = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        if not sep:
+            raise ParameterError(f"--param expects NAME=VALUE, got {item!r}")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise ParameterError(f"--param {name.strip()}: {value!r} is not a number") from None
+    return out

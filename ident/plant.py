@@ -1,0 +1,328 @@
+"""``Plant``: the HarmonicDrive FMU driven through fmpy (the only module of hdrive that talks to fmpy).
+
+The FMU is loaded once; ``reset()`` re-initialises it (optionally with new parameters) without reloading. The
+per-step path calls the FMU's C functions directly with preallocated buffers, because a closed control loop at
+1 kHz calls it hundreds of thousands of times.
+"""
+from __future__ import annotations
+
+import ctypes
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, NamedTuple, Sequence
+
+import numpy as np
+import pandas as pd
+
+from fmu_build import variables as V
+from fmu_build.build import default_fmu_path
+
+from .params import DriveParams, ParameterError, check_parameter
+
+
+class PlantError(RuntimeError):
+    """The FMU rejected a call; the message is the FMU's own log message (it names the variable and range)."""
+
+
+class Sample(NamedTuple):
+    """Outputs of the plant at one communication point (SI)."""
+
+    time: float           # s
+    q_m: float            # rad
+    q_l: float            # rad
+    v_m: float            # rad/s
+    v_l: float            # rad/s
+    spring_torque: float  # N m
+    arm_position: float   # m
+    encoder_count: int    # counts
+    motor_stuck: bool
+    load_stuck: bool
+
+    @property
+    def at_rest(self) -> bool:
+        """Both bodies stuck: with zero torque nothing can move again."""
+        return self.motor_stuck and self.load_stuck
+
+
+# Column names of output tables: SI units in the names.
+COLUMN_UNITS = {"time": "time_s", "q_m": "q_m_rad", "q_l": "q_l_rad", "v_m": "v_m_rad_s", "v_l": "v_l_rad_s",
+                "spring_torque": "spring_torque_Nm", "arm_position": "arm_position_m",
+                "motor_torque": "motor_torque_Nm"}
+
+_REAL_OUTPUTS = ("q_m", "q_l", "v_m", "v_l", "spring_torque", "arm_position", "input_work", "friction_work")
+_INITIAL_STATE = ("q_m_start", "q_l_start", "v_m_start", "v_l_start")
+
+
+@dataclass(frozen=True)
+class PlantState:
+    """An opaque snapshot of the FMU (``Plant.save_state``); also serializable with ``bytes(state)``."""
+
+    data: bytes
+    time: float
+    fmi_version: int
+
+    def __bytes__(self) -> bytes:
+        return self.data
+
+
+class Plant:
+    """The harmonic-drive plant FMU.
+
+    Parameters
+    ----------
+    params:
+        SI drive parameters (``DriveParams``); the nominal drive by default. Non-dimensional form:
+        ``DriveParams.from_nondim(K_star, J_l_star, f_l_star, J_m=..., f_m=...)``.
+    fmi_version:
+        2 or 3: which of the two FMUs to load.
+    fmu_path:
+        An explicit HarmonicDrive.fmu; by default the one built (and cached) from this project's C sources.
+    initial:
+        Initial state: any of ``q_m_start, q_l_start`` [rad], ``v_m_start, v_l_start`` [rad/s].
+    """
+
+    def __init__(self, params: DriveParams | None = None, *, fmi_version: int = 2,
+                 fmu_path: str | Path | None = None, **initial: float) -> None:
+        from fmpy import extract, read_model_description
+        from fmpy.fmi2 import FMU2Slave
+        from fmpy.fmi3 import FMU3Slave
+
+        path = Path(fmu_path) if fmu_path is not None else default_fmu_path(fmi_version)
+        self.model_description = read_model_description(str(path))
+        self.fmi_version = int(self.model_description.fmiVersion[0])
+        self._unzipdir = extract(str(path), unzipdir=tempfile.mkdtemp(prefix="hdrive-fmu-"))
+        kwargs = dict(guid=self.model_description.guid, unzipDirectory=self._unzipdir,
+                      modelIdentifier=self.model_description.coSimulation.modelIdentifier, instanceName="plant")
+        self._messages: list[str] = []
+        if self.fmi_version == 2:
+            self._fmu = FMU2Slave(**kwargs)
+            self._fmu.instantiate(callbacks=self._fmi2_callbacks())
+        else:
+            self._fmu = FMU3Slave(**kwargs)
+            self._fmu.instantiate(logMessage=self._fmi3_log)
+        self._bind_fast_path()
+        self._params = params if params is not None else DriveParams()
+        self._initial = {k: 0.0 for k in _INITIAL_STATE}
+        self.reset(self._params, **initial)
+
+    # -- logging and error handling --------------------------------------------------------------------------
+    def _fmi2_callbacks(self) -> Any:
+        from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2CallbackAllocateMemoryTYPE, \
+            fmi2CallbackFreeMemoryTYPE
+        from fmpy import calloc, free
+
+        def log(env, name, status, category, message):  # noqa: ANN001 - ctypes callback
+            self._messages.append(message.decode("utf-8", "replace").replace("%%", "%"))
+
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(log)
+        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        self._callbacks = cb  # keep alive
+        return cb
+
+    def _fmi3_log(self, env, status, category, message) -> None:  # noqa: ANN001 - ctypes callback
+        self._messages.append(message.decode("utf-8", "replace"))
+
+    def _raise(self, what: str) -> None:
+        detail = self._messages[-1] if self._messages else "no message from the FMU"
+        self._messages.clear()
+        raise PlantError(f"{what} failed: {detail}")
+
+    # -- fast per-step path -----------------------------------------------------------------------------------
+    def _bind_fast_path(self) -> None:
+        f = self._fmu._functions
+        vr = {v.name: v.vr for v in V.VARIABLES}
+        self._vr = vr
+        n = len(_REAL_OUTPUTS)
+        self._in_vr = (ctypes.c_uint32 * 1)(vr["motor_torque"])
+        self._in_val = (ctypes.c_double * 1)()
+        self._out_vr = (ctypes.c_uint32 * n)(*(vr[k] for k in _REAL_OUTPUTS))
+        self._out = (ctypes.c_double * n)()
+        self._int_vr = (ctypes.c_uint32 * 1)(vr["encoder_count"])
+        self._int = (ctypes.c_int32 * 1)()
+        self._bool_vr = (ctypes.c_uint32 * 2)(vr["motor_stuck"], vr["load_stuck"])
+        c = self._fmu.component
+        if self.fmi_version == 2:
+            self._bool = (ctypes.c_int * 2)()
+            set_real, do_step = f["fmi2SetReal"], f["fmi2DoStep"]
+            get_real, get_int, get_bool = f["fmi2GetReal"], f["fmi2GetInteger"], f["fmi2GetBoolean"]
+            self._set_input = lambda: set_real(c, self._in_vr, 1, self._in_val)
+            self._do_step = lambda t, h: do_step(c, t, h, 1)
+            self._get_outputs = lambda: (get_real(c, self._out_vr, n, self._out)
+                                         or get_int(c, self._int_vr, 1, self._int)
+                                         or get_bool(c, self._bool_vr, 2, self._bool))
+        else:
+            self._bool = (ctypes.c_bool * 2)()
+            flags = [ctypes.c_bool() for _ in range(3)]
+            last = ctypes.c_double()
+            refs = [ctypes.byref(x) for x in flags] + [ctypes.byref(last)]
+            set_real, do_step = f["fmi3SetFloat64"], f["fmi3DoStep"]
+            get_real, get_int, get_bool = f["fmi3GetFloat64"], f["fmi3GetInt32"], f["fmi3GetBoolean"]
+            self._set_input = lambda: set_real(c, self._in_vr, 1, self._in_val, 1)
+            self._do_step = lambda t, h: do_step(c, t, h, True, *refs)
+            self._get_outputs = lambda: (get_real(c, self._out_vr, n, self._out, n)
+                                         or get_int(c, self._int_vr, 1, self._int, 1)
+                                         or get_bool(c, self._bool_vr, 2, self._bool, 2))
+
+    # -- life cycle ------------------------------------------------------------------------------------------
+    @property
+    def params(self) -> DriveParams:
+        return self._params
+
+    def reset(self, params: DriveParams | None = None, **initial: float) -> Sample:
+        """Back to time 0 and the initial state, optionally with new parameters / initial state."""
+        for name, value in initial.items():
+            if name not in _INITIAL_STATE:
+                raise ParameterError(f"unknown initial-state name {name!r}; use one of {', '.join(_INITIAL_STATE)}")
+            self._initial[name] = check_parameter(name, value)
+        if params is not None:
+            if not isinstance(params, DriveParams):
+                raise TypeError(f"params must be a DriveParams, got {type(params).__name__}")
+            self._params = params
+        fmu = self._fmu
+        self._messages.clear()
+        try:
+            fmu.reset()
+            values = {**self._params.to_dict(), **self._initial}
+            reals = [(self._vr[k], float(v)) for k, v in values.items() if V.BY_NAME[k].type == "Real"]
+            ints = [(self._vr[k], int(v)) for k, v in values.items() if V.BY_NAME[k].type == "Integer"]
+            set_real, set_int = ((fmu.setReal, fmu.setInteger) if self.fmi_version == 2
+                                 else (fmu.setFloat64, fmu.setInt32))
+            set_real([r[0] for r in reals], [r[1] for r in reals])
+            set_int([i[0] for i in ints], [i[1] for i in ints])
+            if self.fmi_version == 2:
+                fmu.setupExperiment(startTime=0.0)
+                fmu.enterInitializationMode()
+                fmu.exitInitializationMode()
+            else:
+                fmu.enterInitializationMode(startTime=0.0)
+                fmu.exitInitializationMode()
+        except Exception as exc:  # fmpy raises FMICallException; report the FMU's own message
+            if isinstance(exc, PlantError):
+                raise
+            self._raise(f"initializing the plant ({exc})")
+        self.time = 0.0
+        self.torque = 0.0
+        return self.sample()
+
+    def close(self) -> None:
+        """Free the FMU instance and its unpacked files."""
+        if getattr(self, "_fmu", None) is not None:
+            try:
+                self._fmu.terminate()
+            except Exception:
+                pass
+            self._fmu.freeInstance()
+            self._fmu = None
+            shutil.rmtree(self._unzipdir, ignore_errors=True)
+
+    def __enter__(self) -> "Plant":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:
+            pass
+
+    # -- stepping --------------------------------------------------------------------------------------------
+    def step(self, torque: float, dt: float) -> Sample:
+        """Hold ``torque`` [N m] for ``dt`` [s] (exact stick-slip inside) and return the outputs at the end."""
+        self._in_val[0] = torque
+        if self._set_input() > 1:
+            self._raise(f"setting motor_torque = {torque!r} N.m")
+        self.torque = torque
+        if self._do_step(self.time, dt) > 1:
+            self._raise(f"doStep(t = {self.time} s, dt = {dt!r} s)")
+        self.time += dt
+        return self.sample()
+
+    def sample(self) -> Sample:
+        """Outputs at the current communication point."""
+        if self._get_outputs() > 1:
+            self._raise("reading outputs")
+        o = self._out
+        return Sample(self.time, o[0], o[1], o[2], o[3], o[4], o[5], self._int[0], bool(self._bool[0]),
+                      bool(self._bool[1]))
+
+    def energy(self) -> tuple[float, float]:
+        """(input work, friction work) [J] since the last reset, accumulated exactly by the FMU."""
+        return self._out[6], self._out[7]
+
+    def run(self, schedule: Iterable[tuple[float, float]] | pd.DataFrame, *, dt: float | None = None) -> pd.DataFrame:
+        """Simulate a torque schedule and return a table of outputs at every communication point.
+
+        ``schedule`` is a sequence of ``(torque [N m], duration [s])`` pieces, or a DataFrame with columns
+        ``torque_Nm`` and ``duration_s``. With ``dt`` each piece is split into steps of at most ``dt`` seconds
+        (the result is the same, exactly; only the sampling of the table changes).
+        """
+        if isinstance(schedule, pd.DataFrame):
+            missing = {"torque_Nm", "duration_s"} - set(schedule.columns)
+            if missing:
+                raise ValueError(f"schedule DataFrame lacks column(s) {sorted(missing)}")
+            pieces = list(zip(schedule["torque_Nm"], schedule["duration_s"]))
+        else:
+            pieces = list(schedule)
+        rows = [self.sample() + (self.torque,)]
+        for i, (torque, duration) in enumerate(pieces):
+            if not (np.isfinite(torque) and np.isfinite(duration) and duration >= 0):
+                raise ValueError(f"schedule piece {i}: torque {torque!r} N.m and duration {duration!r} s must be "
+                                 "finite, duration >= 0")
+            n = 1 if dt is None else max(1, int(np.ceil(duration / dt - 1e-9)))
+            for _ in range(n):
+                rows.append(self.step(float(torque), duration / n) + (float(torque),))
+        return pd.DataFrame(rows, columns=[*Sample._fields, "motor_torque"]).rename(columns=COLUMN_UNITS)
+
+    def run_to_rest(self, dt: float = 1e-3, max_time: float = 60.0) -> Sample:
+        """Zero torque until both bodies are stuck; raises if that takes longer than ``max_time`` [s]."""
+        s = self.step(0.0, dt)
+        t_end = self.time + max_time
+        while not s.at_rest:
+            if self.time > t_end:
+                raise PlantError(f"the plant did not come to rest within {max_time} s")
+            s = self.step(0.0, dt)
+        return s
+
+    # -- FMU state -------------------------------------------------------------------------------------------
+    def save_state(self) -> PlantState:
+        """Snapshot of the complete FMU state (serialized, so it survives pickling and other processes)."""
+        fmu = self._fmu
+        handle = fmu.getFMUState() if self.fmi_version == 3 else fmu.getFMUstate()
+        try:
+            data = fmu.serializeFMUState(handle) if self.fmi_version == 3 else fmu.serializeFMUstate(handle)
+        finally:
+            fmu.freeFMUState(handle) if self.fmi_version == 3 else fmu.freeFMUstate(handle)
+        return PlantState(bytes(data), self.time, self.fmi_version)
+
+    def restore_state(self, state: PlantState) -> Sample:
+        """Return to a snapshot taken by ``save_state`` on a plant of the same FMU."""
+        if state.fmi_version != self.fmi_version:
+            raise PlantError(f"state comes from an FMI {state.fmi_version} plant, this is FMI {self.fmi_version}")
+        fmu = self._fmu
+        try:
+            if self.fmi_version == 3:
+                handle = fmu.deserializeFMUState(state.data)
+                fmu.setFMUState(handle)
+                fmu.freeFMUState(handle)
+            else:
+                handle = fmu.deSerializeFMUstate(state.data)
+                fmu.setFMUstate(handle)
+                fmu.freeFMUstate(handle)
+        except PlantError:
+            raise
+        except Exception as exc:
+            self._raise(f"restoring the FMU state ({exc})")
+        self.time = state.time
+        return self.sample()
+
+
+def simulate_pieces(params: DriveParams, schedule: Sequence[tuple[float, float]], **kw: Any) -> pd.DataFrame:
+    """Convenience: a fresh plant, one schedule, the output table."""
+    with Plant(params, **kw) as plant:
+        return plant.run(schedule)
