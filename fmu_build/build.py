@@ -77,7 +77,8 @@ def model_vars_header(token: str) -> str:
         lines.append("")
 
     def settable(v: V.Variable) -> str:
-        return f'X({v.vr}u, {v.name}, {_fmt(float(v.lo))}, {_fmt(float(v.hi))}, {_fmt(v.start)}, "{v.unit or ""}")'
+        unit = "" if v.unit in (None, "1") else f" {v.unit}"  # leading space: printed right after the value
+        return f'X({v.vr}u, {v.name}, {_fmt(float(v.lo))}, {_fmt(float(v.hi))}, {_fmt(v.start)}, "{unit}")'
 
     def output(v: V.Variable) -> str:
         return f'X({v.vr}u, {v.name}, "{v.unit or ""}")'

@@ -29,7 +29,7 @@ def check_parameter(name: str, value: Any) -> float | int:
         number = float(value)
     except (TypeError, ValueError):
         raise ParameterError(f"{name} = {value!r} is not a number") from None
-    unit = f" {var.unit}" if var.unit else ""
+    unit = f" {var.unit}" if var.unit not in (None, "1") else ""
     if not (var.lo <= number <= var.hi):  # also rejects NaN
         raise ParameterError(f"{name} = {value!r}{unit} is outside the allowed range [{var.lo:g}, {var.hi:g}]{unit}")
     if var.type == "Integer":

@@ -104,7 +104,7 @@ HDStatus hd_get_boolean(const HDModel *m, uint32_t vr, int *value, char *err, si
 static HDStatus check_range(const char *name, double value, double lo, double hi, const char *unit, char *err,
                             size_t errlen) {
     if (value >= lo && value <= hi) return HD_OK;
-    snprintf(err, errlen, "%s = %g %s is outside the allowed range [%g, %g]%s", name, value, unit, lo, hi,
+    snprintf(err, errlen, "%s = %g%s is outside the allowed range [%g, %g]%s", name, value, unit, lo, hi,
              isnan(value) ? " (NaN)" : "");
     return HD_ERROR;
 }
@@ -438,7 +438,7 @@ HDStatus hd_do_step(HDModel *m, double h, char *err, size_t errlen) {
         return HD_ERROR;
     }
     if (!isfinite(m->motor_torque)) {
-        snprintf(err, errlen, "motor_torque = %g N.m is not finite", m->motor_torque);
+        snprintf(err, errlen, "motor_torque = %g N.m is not finite", m->motor_torque); /* unreachable via set */
         return HD_ERROR;
     }
     HDModel work = *m; /* advance a copy: on error the caller's state is untouched */
