@@ -1,0 +1,389 @@
+"""The paper's resolution protocols (physics.md section 3) on the plant FMU.
+
+- ``impulse_experiment``: increments of an N-pulse experiment, fresh from rest with zero deflection.
+- ``impulse_resolution``: threshold search (first amplitude of a fine ramp whose median increment exceeds eps1),
+  operating amplitude A_op = A_th (1 + eps2), resolution = MAX increment of a fresh N-pulse experiment at A_op.
+- ``linear_resolution``: PD set-point steps of k = 1, 2, ... encoder counts until every measured step moves the
+  arm by more than eps1; resolution = max increment at that smallest consistent k.
+
+Results are dataclasses with ``.to_frame()`` (pandas, one row per pulse / step), ``.summary()`` and ``.plot(path)``.
+All lengths are metres at the arm tip; amplitudes are non-dimensional (tau* = T_m / f_m).
+"""
+from __future__ import annotations
+
+import math
+import operator
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+import pandas as pd
+
+from .controllers import ImpulseController, LinearPD, SettleError
+from .params import DriveParams
+from .plant import Plant
+
+_ZERO_STATE = dict(q_m_start=0.0, q_l_start=0.0, v_m_start=0.0, v_l_start=0.0)
+
+
+class ThresholdNotFound(RuntimeError):
+    """No pulse amplitude up to the torque limit gives a median increment above eps1."""
+
+
+class NoConsistentStep(RuntimeError):
+    """No set-point step up to ``max_counts`` encoder counts moves the arm consistently."""
+
+
+# -- input validation ---------------------------------------------------------------------------------------
+def _count(name: str, value: Any, minimum: int) -> int:
+    if isinstance(value, bool):
+        raise ValueError(f"{name} = {value!r} must be a whole number >= {minimum}")
+    try:
+        n = operator.index(value)
+    except TypeError:
+        raise ValueError(f"{name} = {value!r} must be a whole number >= {minimum}") from None
+    if n < minimum:
+        raise ValueError(f"{name} = {n} must be >= {minimum}")
+    return n
+
+
+def _positive(name: str, value: Any) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} = {value!r} is not a number") from None
+    if not (math.isfinite(x) and x > 0):
+        raise ValueError(f"{name} = {value!r} must be a finite number > 0")
+    return x
+
+
+def _finite(name: str, value: Any) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} = {value!r} is not a number") from None
+    if not math.isfinite(x):
+        raise ValueError(f"{name} = {value!r} must be finite")
+    return x
+
+
+@contextmanager
+def _plant(plant_or_params: Plant | DriveParams | None, fmi_version: int) -> Iterator[Plant]:
+    """A Plant: the one given, or a new one (closed afterwards) for the given drive (nominal if None)."""
+    if isinstance(plant_or_params, Plant):
+        yield plant_or_params
+        return
+    if plant_or_params is not None and not isinstance(plant_or_params, DriveParams):
+        raise ValueError(f"expected a DriveParams or a Plant, got {type(plant_or_params).__name__}")
+    if fmi_version not in (2, 3):
+        raise ValueError(f"fmi_version = {fmi_version!r}: use 2 or 3")
+    plant = Plant(plant_or_params, fmi_version=fmi_version)
+    try:
+        yield plant
+    finally:
+        plant.close()
+
+
+def _fresh(plant: Plant) -> None:
+    """Back to time 0, at rest with zero deflection (both angles and velocities zero)."""
+    plant.reset(None, **_ZERO_STATE)
+
+
+def _stats(x: np.ndarray) -> dict[str, float]:
+    return dict(resolution_m=float(np.max(x)), median_m=float(np.median(x)), min_m=float(np.min(x)),
+                std_m=float(np.std(x)), mean_m=float(np.mean(x)))
+
+
+def _plot_increments(increments_m: np.ndarray, path: str | Path, title: str, xlabel: str) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    um = np.asarray(increments_m) * 1e6
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+    ax1.hist(um, bins=50)
+    ax1.set_xlabel("arm increment [um]")
+    ax1.set_ylabel("count")
+    ax1.axvline(um.max(), color="C3", ls="--", label=f"max {um.max():.4g} um")
+    ax1.legend()
+    ax2.plot(np.arange(1, um.size + 1), um, ".", ms=3)
+    ax2.set_xlabel(xlabel)
+    ax2.set_ylabel("arm increment [um]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+# -- impulse protocol ---------------------------------------------------------------------------------------
+def impulse_experiment(plant_or_params: Plant | DriveParams | None, amplitude_star: float, n_pulses: int,
+                       width_s: float = 1e-3, *, fmi_version: int = 2) -> np.ndarray:
+    """Arm increments [m] of ``n_pulses`` pulses tau* = ``amplitude_star`` for ``width_s``, each followed by rest.
+
+    Fresh from rest with zero deflection (a given Plant is reset, keeping its parameters); the state carries over
+    between pulses.
+    """
+    amplitude_star = _finite("amplitude_star", amplitude_star)
+    n_pulses = _count("n_pulses", n_pulses, 1)
+    width_s = _positive("width_s", width_s)
+    ctrl = ImpulseController(amplitude_star, width_s)
+    with _plant(plant_or_params, fmi_version) as plant:
+        _fresh(plant)
+        return np.array([ctrl.pulse(plant) for _ in range(n_pulses)])
+
+
+def _median_exceeds(plant: Plant, amplitude_star: float, n_pulses: int, eps1_m: float,
+                    width_s: float) -> tuple[bool, int]:
+    """Is the median increment of a fresh N-pulse experiment > eps1? Stops as soon as that is decided.
+
+    Decided early once more than N/2 increments are > eps1 (then both middle order statistics are, so the median
+    is) or more than N/2 are <= eps1. Otherwise (a tie, even N) all N pulses run and np.median decides.
+    Returns (passed, pulses run).
+    """
+    ctrl = ImpulseController(amplitude_star, width_s)
+    _fresh(plant)
+    half = n_pulses / 2
+    above = below = 0
+    incs = []
+    for k in range(n_pulses):
+        inc = ctrl.pulse(plant)
+        incs.append(inc)
+        if inc > eps1_m:
+            above += 1
+            if above > half:
+                return True, k + 1
+        else:
+            below += 1
+            if below > half:
+                return False, k + 1
+    return bool(np.median(incs) > eps1_m), n_pulses
+
+
+@dataclass
+class ImpulseResolution:
+    """Result of the impulse protocol. Lengths in metres at the arm tip; amplitudes in tau*."""
+
+    params: DriveParams
+    threshold_amplitude: float
+    operating_amplitude: float
+    increments_m: np.ndarray
+    n_pulses: int
+    eps1_m: float
+    eps2: float
+    tol_star: float
+    width_s: float
+    median_tests: list[tuple[float, bool, int]] = field(default_factory=list)  # (amplitude, passed, pulses run)
+    elapsed_s: float = float("nan")
+
+    @property
+    def resolution_m(self) -> float:
+        """The resolution: MAX increment at the operating amplitude."""
+        return float(np.max(self.increments_m))
+
+    @property
+    def median_m(self) -> float:
+        return float(np.median(self.increments_m))
+
+    @property
+    def min_m(self) -> float:
+        return float(np.min(self.increments_m))
+
+    @property
+    def std_m(self) -> float:
+        return float(np.std(self.increments_m))
+
+    def summary(self) -> dict[str, Any]:
+        return dict(f_l_star=self.params.f_l_star, threshold_amplitude=self.threshold_amplitude,
+                    operating_amplitude=self.operating_amplitude, n_pulses=self.n_pulses,
+                    **_stats(self.increments_m), n_median_tests=len(self.median_tests), elapsed_s=self.elapsed_s)
+
+    def to_frame(self) -> pd.DataFrame:
+        """One row per pulse of the operating-amplitude experiment."""
+        return pd.DataFrame({"pulse": np.arange(1, len(self.increments_m) + 1),
+                             "amplitude_star": self.operating_amplitude,
+                             "increment_m": self.increments_m, "increment_um": self.increments_m * 1e6})
+
+    def plot(self, path: str | Path) -> Path:
+        """Histogram and increment-vs-pulse-number sequence, PNG."""
+        title = (f"impulse control, f_l* = {self.params.f_l_star:.4g}: A_th = {self.threshold_amplitude:.4f}, "
+                 f"A_op = {self.operating_amplitude:.4f}, resolution (max) = {self.resolution_m * 1e6:.4g} um")
+        return _plot_increments(self.increments_m, path, title, "pulse number")
+
+
+def find_threshold(plant: Plant, n_pulses: int = 1000, eps1_m: float = 0.1e-6, tol_star: float = 1e-4,
+                   width_s: float = 1e-3, coarse_step_star: float = 0.05, max_amplitude_star: float = 20.0,
+                   verify_below: int = 1) -> tuple[float, list[tuple[float, bool, int]]]:
+    """First amplitude of the fine ramp A_i = i tol_star whose N-pulse median increment exceeds eps1.
+
+    A coarse ramp (every ``coarse_step_star``, from 0) brackets the first pass, bisection on the fine grid narrows
+    it to (fail at A - tol, pass at A). Then the ``verify_below`` fine amplitudes just below A are checked to fail
+    (the one at A - tol is already known); if one passes (non-monotonic median), the search continues below it.
+    Returns (A_th, list of median tests (amplitude, passed, pulses run)).
+    """
+    n_pulses = _count("n_pulses", n_pulses, 1)
+    eps1_m = _positive("eps1_m", eps1_m)
+    tol_star = _positive("tol_star", tol_star)
+    width_s = _positive("width_s", width_s)
+    coarse_step_star = _positive("coarse_step_star", coarse_step_star)
+    max_amplitude_star = _positive("max_amplitude_star", max_amplitude_star)
+    verify_below = _count("verify_below", verify_below, 1)
+    step = max(1, round(coarse_step_star / tol_star))
+    i_max = math.floor(max_amplitude_star / tol_star + 1e-9)
+    cache: dict[int, bool] = {}
+    tests: list[tuple[float, bool, int]] = []
+
+    def passes(i: int) -> bool:
+        if i not in cache:
+            a = round(i * tol_star, 12)
+            ok, used = _median_exceeds(plant, a, n_pulses, eps1_m, width_s)
+            cache[i] = ok
+            tests.append((a, ok, used))
+        return cache[i]
+
+    lo, i = -1, 0  # lo: largest index known to fail (-1: none yet)
+    while not passes(i):
+        lo = i
+        if i >= i_max:
+            raise ThresholdNotFound(f"no pulse amplitude up to tau* = {max_amplitude_star:g} gives a median "
+                                    f"increment above eps1 = {eps1_m:g} m (N = {n_pulses}, width {width_s:g} s)")
+        i = min(i + step, i_max)
+    hi = i
+    while True:
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            if passes(mid):
+                hi = mid
+            else:
+                lo = mid
+        below = [j for j in range(hi - 1, hi - 1 - verify_below, -1) if j >= 0]
+        lower_pass = [j for j in below if passes(j)]
+        if not lower_pass:
+            return round(hi * tol_star, 12), tests
+        hi = min(lower_pass)
+        lo = max([j for j, ok in cache.items() if not ok and j < hi], default=-1)
+
+
+def impulse_resolution(plant_or_params: Plant | DriveParams | None = None, n_pulses: int = 1000,
+                       eps1_m: float = 0.1e-6, eps2: float = 0.01, tol_star: float = 1e-4, width_s: float = 1e-3,
+                       *, coarse_step_star: float = 0.05, max_amplitude_star: float = 20.0, verify_below: int = 1,
+                       fmi_version: int = 2) -> ImpulseResolution:
+    """The impulse protocol: threshold search, A_op = A_th (1 + eps2), a fresh N-pulse experiment at A_op."""
+    n_pulses = _count("n_pulses", n_pulses, 1)
+    eps1_m = _positive("eps1_m", eps1_m)
+    eps2 = _positive("eps2", eps2)
+    tol_star = _positive("tol_star", tol_star)
+    width_s = _positive("width_s", width_s)
+    t0 = time.perf_counter()
+    with _plant(plant_or_params, fmi_version) as plant:
+        a_th, tests = find_threshold(plant, n_pulses, eps1_m, tol_star, width_s, coarse_step_star,
+                                     max_amplitude_star, verify_below)
+        a_op = a_th * (1.0 + eps2)
+        incs = impulse_experiment(plant, a_op, n_pulses, width_s)
+        params = plant.params
+    return ImpulseResolution(params, a_th, a_op, incs, n_pulses, eps1_m, eps2, tol_star, width_s, tests,
+                             time.perf_counter() - t0)
+
+
+# -- linear (PD) protocol -----------------------------------------------------------------------------------
+@dataclass
+class LinearResolution:
+    """Result of the linear-controller protocol. ``counts``: the smallest consistent step [encoder counts];
+    ``increments_m``: its measured steps (after warm-up); ``tried``: one record per k tried."""
+
+    params: DriveParams
+    counts: int
+    increments_m: np.ndarray
+    n_steps: int
+    warmup: int
+    eps1_m: float
+    gains: dict[str, float]
+    tried: list[dict[str, Any]] = field(default_factory=list)
+    elapsed_s: float = float("nan")
+
+    @property
+    def resolution_m(self) -> float:
+        """The resolution: MAX increment at the smallest consistent step."""
+        return float(np.max(self.increments_m))
+
+    @property
+    def median_m(self) -> float:
+        return float(np.median(self.increments_m))
+
+    @property
+    def min_m(self) -> float:
+        return float(np.min(self.increments_m))
+
+    @property
+    def std_m(self) -> float:
+        return float(np.std(self.increments_m))
+
+    def summary(self) -> dict[str, Any]:
+        return dict(f_l_star=self.params.f_l_star, counts=self.counts, n_steps=self.n_steps,
+                    **_stats(self.increments_m), elapsed_s=self.elapsed_s)
+
+    def to_frame(self) -> pd.DataFrame:
+        """One row per measured step at the consistent k."""
+        return pd.DataFrame({"step": np.arange(1, len(self.increments_m) + 1), "counts": self.counts,
+                             "increment_m": self.increments_m, "increment_um": self.increments_m * 1e6})
+
+    def plot(self, path: str | Path) -> Path:
+        title = (f"linear PD, f_l* = {self.params.f_l_star:.4g}: consistent at {self.counts} count(s), "
+                 f"resolution (max) = {self.resolution_m * 1e6:.4g} um")
+        return _plot_increments(self.increments_m, path, title, "step number")
+
+
+def linear_steps(plant: Plant, counts: int, n_steps: int, warmup: int = 20, *, eps1_m: float | None = None,
+                 controller: LinearPD | None = None, max_settle_s: float = 60.0) -> np.ndarray:
+    """Fresh from rest with zero deflection: ``warmup`` + ``n_steps`` PD set-point steps of ``counts``; returns
+    the increments [m] of the measured steps. With ``eps1_m``, stops at the first measured step that moves the
+    arm by eps1 or less (that k is then known to be inconsistent); the returned array ends with that step."""
+    counts = _count("counts", counts, 1)
+    pd_ = controller if controller is not None else LinearPD()
+    _fresh(plant)
+    pd_.reset(plant.params, plant.sample())
+    for _ in range(warmup):
+        pd_.move(plant, counts, max_time_s=max_settle_s)
+    out = []
+    for _ in range(n_steps):
+        inc = pd_.move(plant, counts, max_time_s=max_settle_s)
+        out.append(inc)
+        if eps1_m is not None and not inc > eps1_m:
+            break
+    return np.array(out)
+
+
+def linear_resolution(plant_or_params: Plant | DriveParams | None = None, n_steps: int = 1000, warmup: int = 20,
+                      eps1_m: float = 0.1e-6, max_counts: int = 50, *, Kp_star: float = 200.0,
+                      Kd_star: float = 19.2, rate_hz: float = 1000.0, saturation_star: float = 20.0,
+                      max_settle_s: float = 60.0, fmi_version: int = 2) -> LinearResolution:
+    """The linear protocol: k = 1, 2, ... counts, each a fresh run (warm-up then ``n_steps`` measured steps),
+    until every measured step moves the arm by more than eps1. A k is abandoned at its first failing step."""
+    n_steps = _count("n_steps", n_steps, 1)
+    warmup = _count("warmup", warmup, 0)
+    eps1_m = _positive("eps1_m", eps1_m)
+    max_counts = _count("max_counts", max_counts, 1)
+    gains = dict(Kp_star=Kp_star, Kd_star=Kd_star, rate_hz=rate_hz, saturation_star=saturation_star)
+    t0 = time.perf_counter()
+    tried: list[dict[str, Any]] = []
+    with _plant(plant_or_params, fmi_version) as plant:
+        for k in range(1, max_counts + 1):
+            incs = linear_steps(plant, k, n_steps, warmup, eps1_m=eps1_m, controller=LinearPD(**gains),
+                                max_settle_s=max_settle_s)
+            ok = len(incs) == n_steps and bool(np.all(incs > eps1_m))
+            tried.append(dict(counts=k, steps_run=len(incs), consistent=ok,
+                              failing_increment_m=None if ok else float(incs[-1])))
+            if ok:
+                return LinearResolution(plant.params, k, incs, n_steps, warmup, eps1_m, gains, tried,
+                                        time.perf_counter() - t0)
+    raise NoConsistentStep(f"no set-point step up to {max_counts} counts moved the arm by more than "
+                           f"eps1 = {eps1_m:g} m in every one of {n_steps} measured steps")
+
+
+__all__ = ["ImpulseResolution", "LinearResolution", "NoConsistentStep", "SettleError", "ThresholdNotFound",
+           "find_threshold", "impulse_experiment", "impulse_resolution", "linear_resolution", "linear_steps"]
