@@ -6,11 +6,16 @@ import json
 import sys
 from typing import Sequence
 
+from .controllers import SettleError
 from .params import DriveParams, ParameterError, parse_assignments
+from .resolution import NoConsistentStep, ThresholdNotFound
 
 
 def _params_from(args: argparse.Namespace) -> DriveParams:
-    return DriveParams().with_values(**parse_assignments(getattr(args, "param", None)))
+    values = parse_assignments(getattr(args, "param", None))
+    if getattr(args, "fl_star", None) is not None:
+        values["f_l_star"] = args.fl_star
+    return DriveParams().with_values(**values)
 
 
 def cmd_build_fmu(args: argparse.Namespace) -> dict:
@@ -33,6 +38,86 @@ def cmd_demo(args: argparse.Namespace) -> dict:
     return summary
 
 
+def _um(x) -> float | list[float]:
+    import numpy as np
+
+    arr = np.asarray(x, dtype=float) * 1e6
+    return arr.tolist() if arr.ndim else float(arr)
+
+
+def cmd_resolution(args: argparse.Namespace) -> dict:
+    from .resolution import impulse_resolution, linear_resolution
+
+    params = _params_from(args)
+    if args.controller == "impulse":
+        r = impulse_resolution(params, n_pulses=args.pulses, eps1_m=args.eps1_um * 1e-6)
+        out = {"controller": "impulse", "threshold_amplitude": r.threshold_amplitude,
+               "operating_amplitude": r.operating_amplitude, "n_pulses": r.n_pulses}
+    else:
+        r = linear_resolution(params, n_steps=args.steps, eps1_m=args.eps1_um * 1e-6)
+        out = {"controller": "linear", "counts": r.counts, "n_steps": r.n_steps}
+    out.update(resolution_um=_um(r.resolution_m), median_um=_um(r.median_m), min_um=_um(r.min_m),
+               std_um=_um(r.std_m), f_l_star=params.f_l_star, elapsed_s=r.elapsed_s,
+               increments_um=_um(r.increments_m), params=params.to_dict())
+    if args.out:
+        from pathlib import Path
+
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        r.to_frame().to_csv(Path(args.out) / f"{args.controller}_increments.csv", index=False)
+        out["png"] = str(r.plot(Path(args.out) / f"{args.controller}.png"))
+    if not args.json:
+        extra = (f"A_th = {out['threshold_amplitude']:.4f}, A_op = {out['operating_amplitude']:.4f}"
+                 if args.controller == "impulse" else f"consistent at {out['counts']} counts")
+        print(f"{args.controller} resolution (max increment): {out['resolution_um']:.4f} um "
+              f"(median {out['median_um']:.4f}, min {out['min_um']:.4f}, std {out['std_um']:.4f} um); {extra}")
+    return out
+
+
+def cmd_sweep(args: argparse.Namespace) -> dict:
+    from pathlib import Path
+
+    from .resolution import friction_sweep
+
+    sweep = friction_sweep(_params_from(args), args.levels, args.pulses, scheduler=args.scheduler,
+                           workers=args.workers, progress=not args.json)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    df = sweep.to_frame()
+    df.to_csv(out / "sweep.csv", index=False)
+    plots = sweep.plot(out)
+    result = {"csv": str(out / "sweep.csv"), "plots": {k: str(v) for k, v in plots.items()},
+              "trend": sweep.trend(), "levels": df.to_dict(orient="records")}
+    if not args.json:
+        print(df.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+        t = result["trend"]
+        print(f"resolution vs f_l*: slope {t['slope_um']:.4f} um, R^2 {t['r2']:.3f}; wrote {out}")
+    return result
+
+
+def cmd_study(args: argparse.Namespace) -> dict:
+    from .report import write_study
+
+    study, report = write_study(args.out, _params_from(args), n_pulses=args.pulses, n_steps=args.steps,
+                                levels=args.levels, scheduler=args.scheduler, workers=args.workers,
+                                progress=not args.json)
+    if not args.json:
+        print(study.comparison().to_string(index=False))
+        print(f"wrote {report}")
+    return {"report": str(report), **study.summary(),
+            "comparison": study.comparison().to_dict(orient="records")}
+
+
+def _add_drive_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--param", action="append", metavar="NAME=VALUE",
+                   help="drive parameter in SI (e.g. K_s=2e4) or K_star / J_l_star / f_l_star; repeatable")
+    p.add_argument("--json", action="store_true", help="print JSON")
+
+
+def _add_batch_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the levels on this dask.distributed cluster")
+    p.add_argument("--workers", type=int, help="local worker processes (default: cores; 0 = serial, no Dask)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="hdrive", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -51,6 +136,33 @@ def build_parser() -> argparse.ArgumentParser:
                    help="drive parameter in SI (e.g. K_s=2e4) or K_star / J_l_star / f_l_star; repeatable")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("resolution", help="impulse or linear resolution of one drive (paper sections III-IV)")
+    p.add_argument("--controller", choices=("impulse", "linear"), required=True)
+    p.add_argument("--fl-star", type=float, help="load friction level f_l* = f_l/f_m (default: the drive's)")
+    p.add_argument("--pulses", type=int, default=1000, help="pulses per impulse experiment N (default 1000)")
+    p.add_argument("--steps", type=int, default=1000, help="measured PD steps (default 1000)")
+    p.add_argument("--eps1-um", type=float, default=0.1, help="motion threshold eps1 [um] (default 0.1)")
+    p.add_argument("--out", help="also write the increments (CSV) and a histogram (PNG) here")
+    _add_drive_options(p)
+    p.set_defaults(func=cmd_resolution)
+
+    p = sub.add_parser("sweep", help="impulse resolution at 25 load-friction levels (paper section V)")
+    p.add_argument("--levels", type=int, default=25, help="number of levels from f_l* = 0.01 to 1 (default 25)")
+    p.add_argument("--pulses", type=int, default=1000, help="pulses per experiment N (default 1000)")
+    p.add_argument("--out", required=True, help="output directory (CSV + PNG)")
+    _add_batch_options(p)
+    _add_drive_options(p)
+    p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser("study", help="the paper's whole study (sections III-V) with a markdown report")
+    p.add_argument("--out", required=True, help="output directory for report.md and its plots")
+    p.add_argument("--pulses", type=int, default=1000, help="pulses per impulse experiment N (default 1000)")
+    p.add_argument("--steps", type=int, default=1000, help="measured PD steps (default 1000)")
+    p.add_argument("--levels", type=int, default=25, help="friction levels (default 25)")
+    _add_batch_options(p)
+    _add_drive_options(p)
+    p.set_defaults(func=cmd_study)
     return parser
 
 
@@ -58,7 +170,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         result = args.func(args)
-    except (ParameterError, ValueError) as exc:
+    except (ParameterError, ValueError, ThresholdNotFound, NoConsistentStep, SettleError) as exc:
         print(f"hdrive {args.command}: error: {exc}", file=sys.stderr)
         return 2
     if args.json:

@@ -10,10 +10,9 @@ rest with large steps; the PD controller steps at its own sampling period (its o
 """
 from __future__ import annotations
 
-import math
-import operator
 from typing import TYPE_CHECKING
 
+from .checks import number, whole
 from .params import DriveParams
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -22,20 +21,6 @@ if TYPE_CHECKING:  # pragma: no cover
 
 class SettleError(RuntimeError):
     """The plant did not come to a final rest within the allowed time (e.g. a limit cycle)."""
-
-
-def _finite(name: str, value: float, *, positive: bool = False, nonnegative: bool = False) -> float:
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} = {value!r} is not a number") from None
-    if not math.isfinite(x):
-        raise ValueError(f"{name} = {value!r} must be finite")
-    if positive and x <= 0:
-        raise ValueError(f"{name} = {value!r} must be > 0")
-    if nonnegative and x < 0:
-        raise ValueError(f"{name} = {value!r} must be >= 0")
-    return x
 
 
 class ImpulseController:
@@ -48,10 +33,10 @@ class ImpulseController:
 
     def __init__(self, amplitude_star: float, width_s: float = 1e-3, *, rest_step_s: float = 0.02,
                  max_rest_s: float = 60.0) -> None:
-        self.amplitude_star = _finite("amplitude_star", amplitude_star)
-        self.width_s = _finite("width_s", width_s, positive=True)
-        self.rest_step_s = _finite("rest_step_s", rest_step_s, positive=True)
-        self.max_rest_s = _finite("max_rest_s", max_rest_s, positive=True)
+        self.amplitude_star = number("amplitude_star", amplitude_star)
+        self.width_s = number("width_s", width_s, positive=True)
+        self.rest_step_s = number("rest_step_s", rest_step_s, positive=True)
+        self.max_rest_s = number("max_rest_s", max_rest_s, positive=True)
 
     def to_rest(self, plant: "Plant") -> "Sample":
         """Zero torque until the plant is at rest *under zero torque* (at least one zero-torque step).
@@ -106,10 +91,10 @@ class LinearPD:
 
     def __init__(self, Kp_star: float = 200.0, Kd_star: float = 19.2, rate_hz: float = 1000.0,
                  saturation_star: float = 20.0, *, params: DriveParams | None = None) -> None:
-        self.Kp_star = _finite("Kp_star", Kp_star)
-        self.Kd_star = _finite("Kd_star", Kd_star)
-        self.rate_hz = _finite("rate_hz", rate_hz, positive=True)
-        self.saturation_star = _finite("saturation_star", saturation_star, positive=True)
+        self.Kp_star = number("Kp_star", Kp_star)
+        self.Kd_star = number("Kd_star", Kd_star)
+        self.rate_hz = number("rate_hz", rate_hz, positive=True)
+        self.saturation_star = number("saturation_star", saturation_star, positive=True)
         self.params: DriveParams | None = None
         self.setpoint_count = 0
         self._y_prev: float | None = None
@@ -172,12 +157,7 @@ class LinearPD:
         not happen within ``max_time_s`` (a limit cycle). The controller is (re)bound to the plant's drive if it
         is not bound to it yet.
         """
-        if isinstance(counts, bool):
-            raise ValueError(f"counts = {counts!r} must be a whole number of encoder counts")
-        try:
-            counts = operator.index(counts)
-        except TypeError:
-            raise ValueError(f"counts = {counts!r} must be a whole number of encoder counts") from None
+        counts = whole("counts", counts, -2**31)
         s = plant.sample()
         if self.params is None or self.params != plant.params:
             self.reset(plant.params, s)

@@ -12,16 +12,16 @@ All lengths are metres at the arm tip; amplitudes are non-dimensional (tau* = T_
 from __future__ import annotations
 
 import math
-import operator
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 import pandas as pd
 
+from .checks import number, whole
 from .controllers import ImpulseController, LinearPD, SettleError
 from .params import DriveParams
 from .plant import Plant
@@ -35,39 +35,6 @@ class ThresholdNotFound(RuntimeError):
 
 class NoConsistentStep(RuntimeError):
     """No set-point step up to ``max_counts`` encoder counts moves the arm consistently."""
-
-
-# -- input validation ---------------------------------------------------------------------------------------
-def _count(name: str, value: Any, minimum: int) -> int:
-    if isinstance(value, bool):
-        raise ValueError(f"{name} = {value!r} must be a whole number >= {minimum}")
-    try:
-        n = operator.index(value)
-    except TypeError:
-        raise ValueError(f"{name} = {value!r} must be a whole number >= {minimum}") from None
-    if n < minimum:
-        raise ValueError(f"{name} = {n} must be >= {minimum}")
-    return n
-
-
-def _positive(name: str, value: Any) -> float:
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} = {value!r} is not a number") from None
-    if not (math.isfinite(x) and x > 0):
-        raise ValueError(f"{name} = {value!r} must be a finite number > 0")
-    return x
-
-
-def _finite(name: str, value: Any) -> float:
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} = {value!r} is not a number") from None
-    if not math.isfinite(x):
-        raise ValueError(f"{name} = {value!r} must be finite")
-    return x
 
 
 @contextmanager
@@ -129,9 +96,9 @@ def impulse_experiment(plant_or_params: Plant | DriveParams | None, amplitude_st
     Fresh from rest with zero deflection (a given Plant is reset, keeping its parameters); the state carries over
     between pulses.
     """
-    amplitude_star = _finite("amplitude_star", amplitude_star)
-    n_pulses = _count("n_pulses", n_pulses, 1)
-    width_s = _positive("width_s", width_s)
+    amplitude_star = number("amplitude_star", amplitude_star)
+    n_pulses = whole("n_pulses", n_pulses, 1)
+    width_s = number("width_s", width_s, positive=True)
     ctrl = ImpulseController(amplitude_star, width_s)
     with _plant(plant_or_params, fmi_version) as plant:
         _fresh(plant)
@@ -226,13 +193,13 @@ def find_threshold(plant: Plant, n_pulses: int = 1000, eps1_m: float = 0.1e-6, t
     (the one at A - tol is already known); if one passes (non-monotonic median), the search continues below it.
     Returns (A_th, list of median tests (amplitude, passed, pulses run)).
     """
-    n_pulses = _count("n_pulses", n_pulses, 1)
-    eps1_m = _positive("eps1_m", eps1_m)
-    tol_star = _positive("tol_star", tol_star)
-    width_s = _positive("width_s", width_s)
-    coarse_step_star = _positive("coarse_step_star", coarse_step_star)
-    max_amplitude_star = _positive("max_amplitude_star", max_amplitude_star)
-    verify_below = _count("verify_below", verify_below, 1)
+    n_pulses = whole("n_pulses", n_pulses, 1)
+    eps1_m = number("eps1_m", eps1_m, positive=True)
+    tol_star = number("tol_star", tol_star, positive=True)
+    width_s = number("width_s", width_s, positive=True)
+    coarse_step_star = number("coarse_step_star", coarse_step_star, positive=True)
+    max_amplitude_star = number("max_amplitude_star", max_amplitude_star, positive=True)
+    verify_below = whole("verify_below", verify_below, 1)
     step = max(1, round(coarse_step_star / tol_star))
     i_max = math.floor(max_amplitude_star / tol_star + 1e-9)
     cache: dict[int, bool] = {}
@@ -274,11 +241,11 @@ def impulse_resolution(plant_or_params: Plant | DriveParams | None = None, n_pul
                        *, coarse_step_star: float = 0.05, max_amplitude_star: float = 20.0, verify_below: int = 1,
                        fmi_version: int = 2) -> ImpulseResolution:
     """The impulse protocol: threshold search, A_op = A_th (1 + eps2), a fresh N-pulse experiment at A_op."""
-    n_pulses = _count("n_pulses", n_pulses, 1)
-    eps1_m = _positive("eps1_m", eps1_m)
-    eps2 = _positive("eps2", eps2)
-    tol_star = _positive("tol_star", tol_star)
-    width_s = _positive("width_s", width_s)
+    n_pulses = whole("n_pulses", n_pulses, 1)
+    eps1_m = number("eps1_m", eps1_m, positive=True)
+    eps2 = number("eps2", eps2, positive=True)
+    tol_star = number("tol_star", tol_star, positive=True)
+    width_s = number("width_s", width_s, positive=True)
     t0 = time.perf_counter()
     with _plant(plant_or_params, fmi_version) as plant:
         a_th, tests = find_threshold(plant, n_pulses, eps1_m, tol_star, width_s, coarse_step_star,
@@ -343,7 +310,7 @@ def linear_steps(plant: Plant, counts: int, n_steps: int, warmup: int = 20, *, e
     """Fresh from rest with zero deflection: ``warmup`` + ``n_steps`` PD set-point steps of ``counts``; returns
     the increments [m] of the measured steps. With ``eps1_m``, stops at the first measured step that moves the
     arm by eps1 or less (that k is then known to be inconsistent); the returned array ends with that step."""
-    counts = _count("counts", counts, 1)
+    counts = whole("counts", counts, 1)
     pd_ = controller if controller is not None else LinearPD()
     _fresh(plant)
     pd_.reset(plant.params, plant.sample())
@@ -364,10 +331,10 @@ def linear_resolution(plant_or_params: Plant | DriveParams | None = None, n_step
                       max_settle_s: float = 60.0, fmi_version: int = 2) -> LinearResolution:
     """The linear protocol: k = 1, 2, ... counts, each a fresh run (warm-up then ``n_steps`` measured steps),
     until every measured step moves the arm by more than eps1. A k is abandoned at its first failing step."""
-    n_steps = _count("n_steps", n_steps, 1)
-    warmup = _count("warmup", warmup, 0)
-    eps1_m = _positive("eps1_m", eps1_m)
-    max_counts = _count("max_counts", max_counts, 1)
+    n_steps = whole("n_steps", n_steps, 1)
+    warmup = whole("warmup", warmup, 0)
+    eps1_m = number("eps1_m", eps1_m, positive=True)
+    max_counts = whole("max_counts", max_counts, 1)
     gains = dict(Kp_star=Kp_star, Kd_star=Kd_star, rate_hz=rate_hz, saturation_star=saturation_star)
     t0 = time.perf_counter()
     tried: list[dict[str, Any]] = []
@@ -385,5 +352,117 @@ def linear_resolution(plant_or_params: Plant | DriveParams | None = None, n_step
                            f"eps1 = {eps1_m:g} m in every one of {n_steps} measured steps")
 
 
+
+# -- friction sweep (paper section V) -------------------------------------------------------------------------
+def friction_levels(n: int = 25) -> np.ndarray:
+    """The paper's load-friction levels f_l* = 10^(-2 + 2 i/(n-1)), i = 0..n-1 (0.01 ... 1; 0.1 in the middle)."""
+    n = whole("levels", n, 2)
+    return 10.0 ** (-2.0 + 2.0 * np.arange(n) / (n - 1))
+
+
+@dataclass
+class FrictionSweep:
+    """The impulse protocol at every load-friction level. ``results[i]`` belongs to ``f_l_star[i]``."""
+
+    f_l_star: np.ndarray
+    results: list[ImpulseResolution]
+
+    def to_frame(self) -> pd.DataFrame:
+        """One row per level: amplitudes (tau*), increments in um at the arm, the first increment, wall time."""
+        rows = []
+        for f, r in zip(self.f_l_star, self.results):
+            x = r.increments_m * 1e6
+            rows.append(dict(f_l_star=f, threshold_amplitude=r.threshold_amplitude,
+                             operating_amplitude=r.operating_amplitude, resolution_um=x.max(), median_um=np.median(x),
+                             min_um=x.min(), std_um=np.std(x, ddof=1) if x.size > 1 else 0.0,
+                             first_increment_um=x[0], first_over_median=x[0] / np.median(x) if np.median(x) else np.inf,
+                             n_pulses=r.n_pulses, elapsed_s=r.elapsed_s))
+        return pd.DataFrame(rows)
+
+    def at(self, f_l_star: float) -> ImpulseResolution:
+        """The result at the level nearest to ``f_l_star`` (in log scale)."""
+        return self.results[int(np.argmin(abs(np.log(self.f_l_star) - math.log(f_l_star))))]
+
+    def trend(self, column: str = "resolution_um") -> dict[str, float]:
+        """Least-squares line ``column = slope * f_l* + intercept`` with R^2 (the paper says: linear in f_l*)."""
+        df = self.to_frame()
+        x, y = df["f_l_star"].to_numpy(), df[column].to_numpy()
+        slope, intercept = np.polyfit(x, y, 1)
+        resid = y - (slope * x + intercept)
+        ss_tot = float(np.sum((y - y.mean()) ** 2))
+        r2 = 1.0 - float(np.sum(resid**2)) / ss_tot if ss_tot > 0 else float("nan")
+        return dict(slope_um=float(slope), intercept_um=float(intercept), r2=r2)
+
+    def plot(self, out_dir: str | Path, at_f_l_star: float = 0.1) -> dict[str, Path]:
+        """The four plots of the paper's section V as PNGs in ``out_dir``."""
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        df, ref = self.to_frame(), self.at(at_f_l_star)
+        um = ref.increments_m * 1e6
+        paths = {}
+
+        def save(fig, name: str) -> None:
+            fig.tight_layout()
+            paths[name] = out / f"{name}.png"
+            fig.savefig(paths[name], dpi=120)
+            plt.close(fig)
+
+        fig, ax = plt.subplots(figsize=(6, 4))
+        ax.hist(um, bins=50)
+        ax.set(xlabel="arm increment [um]", ylabel="pulses",
+               title=f"Histogram, f_l* = {ref.params.f_l_star:.3g}, N = {um.size}")
+        save(fig, "histogram_fl0.1")
+        fig, ax = plt.subplots(figsize=(6, 4))
+        ax.plot(np.arange(1, um.size + 1), um, ".", ms=3)
+        ax.set(xlabel="pulse number", ylabel="arm increment [um]",
+               title=f"Increment vs pulse number, f_l* = {ref.params.f_l_star:.3g}")
+        save(fig, "sequence_fl0.1")
+        fig, ax = plt.subplots(figsize=(6, 4))
+        for col, label in (("resolution_um", "max (resolution)"), ("median_um", "median"), ("min_um", "min")):
+            ax.plot(df["f_l_star"], df[col], "o-", ms=3, label=label)
+        t = self.trend()
+        ax.plot(df["f_l_star"], t["slope_um"] * df["f_l_star"] + t["intercept_um"], "k--", lw=0.8,
+                label=f"linear fit of max: slope {t['slope_um']:.3g} um, R^2 {t['r2']:.2f}")
+        ax.set(xlabel="load friction level f_l*", ylabel="arm increment [um]", title="Increment vs friction level")
+        ax.legend(fontsize=8)
+        save(fig, "delta_vs_friction")
+        fig, ax = plt.subplots(figsize=(6, 4))
+        ax.plot(df["f_l_star"], df["std_um"], "o-", ms=3)
+        ax.set(xlabel="load friction level f_l*", ylabel="std of increments [um]",
+               title="Standard deviation vs friction level")
+        save(fig, "std_vs_friction")
+        return paths
+
+
+def _impulse_task(task: tuple[DriveParams, int, dict[str, Any]]) -> ImpulseResolution:
+    params, n_pulses, kw = task
+    return impulse_resolution(params, n_pulses, **kw)
+
+
+def friction_sweep(params: DriveParams | None = None, levels: int | Sequence[float] = 25, n_pulses: int = 1000,
+                   *, scheduler: str | None = None, workers: int | None = None, progress: bool = False,
+                   **protocol: Any) -> FrictionSweep:
+    """The impulse protocol at each load-friction level (f_l* = f_l/f_m), other parameters from ``params``.
+
+    Levels run in parallel on Dask (``ident.distributed.run_batch``: local worker processes by default, the
+    cluster at ``scheduler`` if given, serial with ``workers=0``); the results do not depend on where they ran.
+    """
+    from .distributed import run_batch
+
+    base = params or DriveParams()
+    f = friction_levels(levels) if isinstance(levels, (int, np.integer)) else np.asarray(levels, dtype=float)
+    if f.size == 0 or not np.all(np.isfinite(f) & (f >= 0)):
+        raise ValueError(f"friction levels must be finite numbers >= 0, got {levels!r}")
+    n_pulses = whole("n_pulses", n_pulses, 1)
+    tasks = [(base.with_values(f_l_star=float(x)), n_pulses, protocol) for x in f]
+    results = run_batch(_impulse_task, tasks, scheduler=scheduler, workers=workers, progress=progress,
+                        desc="friction levels")
+    return FrictionSweep(f, results)
+
 __all__ = ["ImpulseResolution", "LinearResolution", "NoConsistentStep", "SettleError", "ThresholdNotFound",
-           "find_threshold", "impulse_experiment", "impulse_resolution", "linear_resolution", "linear_steps"]
+           "FrictionSweep", "find_threshold", "friction_levels", "friction_sweep", "impulse_experiment", "impulse_resolution", "linear_resolution", "linear_steps"]

@@ -11,8 +11,8 @@ Each body is in one of three modes: stuck (velocity exactly 0), or slipping in d
 -dir * f, constant while the mode lasts). A body with zero friction level never sticks. Within a mode the
 equations are linear with constant forcing; a segment ends at the first event:
 
-* a slipping body's velocity reaches zero (only the crossing *towards* the opposite sign counts, so a body
-  that has just broken away from v = 0 does not re-trigger at the segment start);
+* a slipping body's velocity reaches zero (only the crossing *towards* the opposite sign counts; for a
+  slip that starts from v = 0 the event function is v / tau, so that tau = 0 is never mistaken for a root);
 * a stuck body's net non-friction torque N (motor: T - r K_s d, load: K_s d) crosses +f upwards or -f
   downwards.
 
@@ -161,24 +161,28 @@ def _initial_mode(drive: DriveSI, state: State, torque: float) -> tuple[State, M
     return _with_mode(state, (mode[0], mode[1])), (mode[0], mode[1])
 
 
-def _mode_after_event(drive: DriveSI, state: State, mode: Mode, event: _Event, torque: float) -> Mode:
-    """New mode after ``event``; also catches an event of the other body hidden in the same step."""
+def _after_event(drive: DriveSI, state: State, mode: Mode, event: _Event,
+                 torque: float) -> tuple[State, Mode]:
+    """Karnopp transition at ``event``; also catches an event of the other body hidden in the same step
+    (solve_ivp reports only the first terminal event of a step)."""
     nets = _net_torques(drive, state.q_m, state.q_l, torque)
-    vels = (state.v_m, state.v_l)
+    vels = [state.v_m, state.v_l]
     new = list(mode)
     for body, level in enumerate(drive.frictions()):
         if level == 0.0:
             continue
-        if body == event.body:
-            if event.kind == "stop":
-                new[body] = _decide_at_rest(nets[body], level)
-            else:  # trust the crossed threshold, see the module docstring
-                new[body] = 1 if event.kind == "break_up" else -1
+        if body == event.body and event.kind == "stop":
+            vels[body] = 0.0
+            new[body] = _decide_at_rest(nets[body], level)
+        elif body == event.body:  # trust the crossed threshold, see the module docstring
+            new[body] = 1 if event.kind == "break_up" else -1
         elif mode[body] == STUCK and abs(nets[body]) > level:
             new[body] = 1 if nets[body] > 0.0 else -1
         elif mode[body] != STUCK and vels[body] * mode[body] < 0.0:
+            vels[body] = 0.0
             new[body] = _decide_at_rest(nets[body], level)
-    return new[0], new[1]
+    mode = (new[0], new[1])
+    return _with_mode(replace(state, v_m=vels[0], v_l=vels[1]), mode), mode
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -237,23 +241,32 @@ def _event_functions(drive: DriveSI, state: State, mode: Mode,
     funcs: list[Callable] = []
     events: list[_Event] = []
 
-    def add(g: Callable[[np.ndarray], float], direction: float, event: _Event) -> None:
-        def fn(_t: float, y: np.ndarray) -> float:
-            return g(y)
+    def add(g: Callable[[float, np.ndarray], float], direction: float, event: _Event) -> None:
+        def fn(t: float, y: np.ndarray) -> float:
+            return g(t, y)
         fn.terminal = True  # type: ignore[attr-defined]
         fn.direction = direction  # type: ignore[attr-defined]
         funcs.append(fn)
         events.append(event)
 
+    inertias = (drive.J_m, drive.J_l)
+    velocities = (state.v_m, state.v_l)
     for body, level in enumerate(drive.frictions()):
         if level == 0.0:
             continue
+        n = net(body)
         if mode[body] == STUCK:
-            n = net(body)
-            add(lambda y, n=n, f=level: n(y) - f, 1.0, _Event(body, "break_up"))
-            add(lambda y, n=n, f=level: n(y) + f, -1.0, _Event(body, "break_down"))
+            add(lambda _t, y, n=n, f=level: n(y) - f, 1.0, _Event(body, "break_up"))
+            add(lambda _t, y, n=n, f=level: n(y) + f, -1.0, _Event(body, "break_down"))
+        elif velocities[body] != 0.0:
+            add(lambda _t, y, i=2 + body: y[i], -float(mode[body]), _Event(body, "stop"))
         else:
-            add(lambda y, i=2 + body: y[i], -float(mode[body]), _Event(body, "stop"))
+            # Slip starting from v = 0: v itself is zero at tau = 0, and when the slip is a micro-slip that
+            # returns to v = 0 inside the first step, the root finder would return tau = 0 again and again.
+            # v / tau has the same later roots, and at tau = 0 the value of the initial acceleration.
+            a0 = (n(np.zeros(4)) - mode[body] * level) / inertias[body]
+            add(lambda t, y, i=2 + body, a0=a0: y[i] / t if t > 0.0 else a0, -float(mode[body]),
+                _Event(body, "stop"))
     return funcs, events
 
 
@@ -272,14 +285,12 @@ def _segment(drive: DriveSI, state: State, mode: Mode, torque: float,
     if sol.status == 1:
         k = min((k for k, te in enumerate(sol.t_events) if te.size), key=lambda k: sol.t_events[k][0])
         fired, tau, y = events[k], sol.t_events[k][0], sol.y_events[k][0]
-    dq_m, dq_l = y[0], y[1]
-    friction_work = sum(mode[i] * f * dq for i, (f, dq) in enumerate(zip(drive.frictions(), (dq_m, dq_l)))
-                        if mode[i] != STUCK)
-    end = replace(state, q_m=state.q_m + dq_m, q_l=state.q_l + dq_l, v_m=y[2], v_l=y[3],
-                  time=state.time + tau, input_work=state.input_work + torque * dq_m,
+    dq_m, dq_l, v_m, v_l = (float(x) for x in y)
+    # A slipping body's friction opposes its fixed direction, so it dissipates f * dir * dq (stuck: dir = 0).
+    friction_work = drive.f_m * mode[MOTOR] * dq_m + drive.f_l * mode[LOAD] * dq_l
+    end = replace(state, q_m=state.q_m + dq_m, q_l=state.q_l + dq_l, v_m=v_m, v_l=v_l,
+                  time=state.time + float(tau), input_work=state.input_work + torque * dq_m,
                   friction_work=state.friction_work + friction_work)
-    if fired is not None and fired.kind == "stop":
-        end = replace(end, v_m=0.0) if fired.body == MOTOR else replace(end, v_l=0.0)
     return end, fired
 
 
@@ -303,8 +314,7 @@ def _advance(drive: DriveSI, state: State, torque: float, duration: float, stop_
         state, event = _segment(drive, state, mode, torque, span)
         if event is None:
             return replace(state, time=t_end)
-        mode = _mode_after_event(drive, state, mode, event, torque)
-        state = _with_mode(state, mode)
+        state, mode = _after_event(drive, state, mode, event, torque)
     raise RuntimeError(f"more than {MAX_EVENTS} events in one call (Zeno behaviour?)")
 
 
@@ -351,10 +361,8 @@ def trajectory(drive: DriveSI, state: State, torque: float, duration: float, n_p
     """
     times = state.time + np.linspace(0.0, duration, n_points)
     rows = []
-    for k, t in enumerate(times):
-        if k:
-            state = simulate(drive, state, torque, t - state.time)
-        state_row = _initial_mode(drive, state, torque)[0] if k == 0 else state
-        rows.append((state_row.q_m, state_row.q_l, state_row.v_m, state_row.v_l))
+    for t in times:
+        state = simulate(drive, state, torque, t - state.time)
+        rows.append((state.q_m, state.q_l, state.v_m, state.v_l))
     q_m, q_l, v_m, v_l = np.array(rows).T
     return Trajectory(times, q_m, q_l, v_m, v_l)
