@@ -59,9 +59,32 @@ def _fresh(plant: Plant) -> None:
     plant.reset(None, **_ZERO_STATE)
 
 
-def _stats(x: np.ndarray) -> dict[str, float]:
-    return dict(resolution_m=float(np.max(x)), median_m=float(np.median(x)), min_m=float(np.min(x)),
-                std_m=float(np.std(x)), mean_m=float(np.mean(x)))
+class IncrementStats:
+    """Statistics of ``increments_m`` (metres at the arm). The resolution is the MAX increment; the standard
+    deviation uses N - 1, as in the paper's formula."""
+
+    increments_m: np.ndarray
+
+    @property
+    def resolution_m(self) -> float:
+        return float(np.max(self.increments_m))
+
+    @property
+    def median_m(self) -> float:
+        return float(np.median(self.increments_m))
+
+    @property
+    def min_m(self) -> float:
+        return float(np.min(self.increments_m))
+
+    @property
+    def std_m(self) -> float:
+        x = self.increments_m
+        return float(np.std(x, ddof=1)) if x.size > 1 else 0.0
+
+    def stats(self) -> dict[str, float]:
+        return dict(resolution_m=self.resolution_m, median_m=self.median_m, min_m=self.min_m, std_m=self.std_m,
+                    mean_m=float(np.mean(self.increments_m)))
 
 
 def _plot_increments(increments_m: np.ndarray, path: str | Path, title: str, xlabel: str) -> Path:
@@ -133,7 +156,7 @@ def _median_exceeds(plant: Plant, amplitude_star: float, n_pulses: int, eps1_m: 
 
 
 @dataclass
-class ImpulseResolution:
+class ImpulseResolution(IncrementStats):
     """Result of the impulse protocol. Lengths in metres at the arm tip; amplitudes in tau*."""
 
     params: DriveParams
@@ -148,27 +171,11 @@ class ImpulseResolution:
     median_tests: list[tuple[float, bool, int]] = field(default_factory=list)  # (amplitude, passed, pulses run)
     elapsed_s: float = float("nan")
 
-    @property
-    def resolution_m(self) -> float:
-        """The resolution: MAX increment at the operating amplitude."""
-        return float(np.max(self.increments_m))
-
-    @property
-    def median_m(self) -> float:
-        return float(np.median(self.increments_m))
-
-    @property
-    def min_m(self) -> float:
-        return float(np.min(self.increments_m))
-
-    @property
-    def std_m(self) -> float:
-        return float(np.std(self.increments_m))
 
     def summary(self) -> dict[str, Any]:
         return dict(f_l_star=self.params.f_l_star, threshold_amplitude=self.threshold_amplitude,
                     operating_amplitude=self.operating_amplitude, n_pulses=self.n_pulses,
-                    **_stats(self.increments_m), n_median_tests=len(self.median_tests), elapsed_s=self.elapsed_s)
+                    **self.stats(), n_median_tests=len(self.median_tests), elapsed_s=self.elapsed_s)
 
     def to_frame(self) -> pd.DataFrame:
         """One row per pulse of the operating-amplitude experiment."""
@@ -259,7 +266,7 @@ def impulse_resolution(plant_or_params: Plant | DriveParams | None = None, n_pul
 
 # -- linear (PD) protocol -----------------------------------------------------------------------------------
 @dataclass
-class LinearResolution:
+class LinearResolution(IncrementStats):
     """Result of the linear-controller protocol. ``counts``: the smallest consistent step [encoder counts];
     ``increments_m``: its measured steps (after warm-up); ``tried``: one record per k tried."""
 
@@ -273,26 +280,10 @@ class LinearResolution:
     tried: list[dict[str, Any]] = field(default_factory=list)
     elapsed_s: float = float("nan")
 
-    @property
-    def resolution_m(self) -> float:
-        """The resolution: MAX increment at the smallest consistent step."""
-        return float(np.max(self.increments_m))
-
-    @property
-    def median_m(self) -> float:
-        return float(np.median(self.increments_m))
-
-    @property
-    def min_m(self) -> float:
-        return float(np.min(self.increments_m))
-
-    @property
-    def std_m(self) -> float:
-        return float(np.std(self.increments_m))
 
     def summary(self) -> dict[str, Any]:
         return dict(f_l_star=self.params.f_l_star, counts=self.counts, n_steps=self.n_steps,
-                    **_stats(self.increments_m), elapsed_s=self.elapsed_s)
+                    **self.stats(), elapsed_s=self.elapsed_s)
 
     def to_frame(self) -> pd.DataFrame:
         """One row per measured step at the consistent k."""
@@ -371,11 +362,11 @@ class FrictionSweep:
         """One row per level: amplitudes (tau*), increments in um at the arm, the first increment, wall time."""
         rows = []
         for f, r in zip(self.f_l_star, self.results):
-            x = r.increments_m * 1e6
+            first, median = r.increments_m[0], r.median_m
             rows.append(dict(f_l_star=f, threshold_amplitude=r.threshold_amplitude,
-                             operating_amplitude=r.operating_amplitude, resolution_um=x.max(), median_um=np.median(x),
-                             min_um=x.min(), std_um=np.std(x, ddof=1) if x.size > 1 else 0.0,
-                             first_increment_um=x[0], first_over_median=x[0] / np.median(x) if np.median(x) else np.inf,
+                             operating_amplitude=r.operating_amplitude, resolution_um=r.resolution_m * 1e6,
+                             median_um=median * 1e6, min_um=r.min_m * 1e6, std_um=r.std_m * 1e6,
+                             first_increment_um=first * 1e6, first_over_median=first / median if median else np.inf,
                              n_pulses=r.n_pulses, elapsed_s=r.elapsed_s))
         return pd.DataFrame(rows)
 
