@@ -136,3 +136,21 @@ def test_fmpy_compile_rebuilds_from_the_shipped_sources(fmu_any: Path, tmp_path:
     fmi = 2 if read_model_description(str(copy)).fmiVersion == "2.0" else 3
     with Plant(fmi_version=fmi, fmu_path=copy) as rebuilt, Plant(fmi_version=fmi, fmu_path=fmu_any) as original:
         np.testing.assert_allclose(trace(rebuilt, PULSES), trace(original, PULSES), rtol=1e-12, atol=1e-18)
+
+
+def test_fmu_cache_rebuilds_when_the_c_sources_change(tmp_path: Path, monkeypatch) -> None:
+    """The cached FMU is keyed by the sources: an edited model.c gives a new build, an unchanged one is reused."""
+    import fmu_build.build as build
+
+    monkeypatch.setenv("HDRIVE_CACHE", str(tmp_path / "cache"))
+    src = tmp_path / "c"
+    shutil.copytree(build.C_DIR, src)
+    monkeypatch.setattr(build, "C_DIR", src)
+    first = build.build_fmu(fmi_version=2)
+    assert build.build_fmu(fmi_version=2) == first  # cache hit
+    stamp = first.stat().st_mtime_ns
+    (src / "model.c").write_text((src / "model.c").read_text() + "\n/* edited */\n")
+    second = build.build_fmu(fmi_version=2)
+    assert second != first and second.is_file() and first.stat().st_mtime_ns == stamp
+    with zipfile.ZipFile(second) as zf:
+        assert "/* edited */" in zf.read("sources/model.c").decode()
