@@ -279,6 +279,32 @@ class Plant:
                 rows.append(self.step(float(torque), duration / n) + (float(torque),))
         return pd.DataFrame(rows, columns=[*Sample._fields, "motor_torque"]).rename(columns=COLUMN_UNITS)
 
+    def positions(self, torques: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Hold ``torques[k]`` [N m] over the k-th step of ``dt`` [s]; return (q_m, q_l) [rad] at the start and after
+        every step (length len(torques) + 1). The lean loop behind log simulation in identification."""
+        torques = np.ascontiguousarray(torques, dtype=float)
+        n = torques.size
+        out = np.empty((n + 1, 2))
+        s = self.sample()
+        out[0] = s.q_m, s.q_l
+        vr = (ctypes.c_uint32 * 2)(self._vr["q_m"], self._vr["q_l"])
+        buf = (ctypes.c_double * 2)()
+        get = self._fmu._functions["fmi2GetReal" if self.fmi_version == 2 else "fmi3GetFloat64"]
+        c = self._fmu.component
+        extra = () if self.fmi_version == 2 else (2,)
+        set_input, do_step, val = self._set_input, self._do_step, self._in_val
+        t = self.time
+        for k in range(n):
+            val[0] = torques[k]
+            if set_input() > 1 or do_step(t, dt) > 1 or get(c, vr, 2, buf, *extra) > 1:
+                self.time = t
+                self._raise(f"simulating sample {k} (torque {torques[k]!r} N.m)")
+            t += dt
+            out[k + 1] = buf[0], buf[1]
+        self.time = t
+        self.torque = float(torques[-1]) if n else self.torque
+        return out[:, 0], out[:, 1]
+
     def run_to_rest(self, dt: float = 1e-3, max_time: float = 60.0) -> Sample:
         """Zero torque until both bodies are stuck; raises if that takes longer than ``max_time`` [s]."""
         s = self.step(0.0, dt)
