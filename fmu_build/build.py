@@ -275,6 +275,22 @@ def _build_into(tmp: Path, fmi_version: int, token: str, sanitize: bool) -> Path
     return fmu
 
 
+def build_runner() -> Path:
+    """The importer-side stepping loop (``c/runner.c``) as a shared library, cached like the FMU."""
+    h = hashlib.sha256((C_DIR / "runner.c").read_bytes() + f"{compiler()}|{platform.machine()}".encode())
+    target = cache_dir() / f"runner-{h.hexdigest()[:16]}" / f"hd_runner{_shared_suffix()}"
+    if target.is_file():
+        return target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    staged = target.parent / f".{target.name}.{os.getpid()}.tmp"
+    cmd = [compiler(), "-shared", "-fPIC", "-std=c99", "-O2", "-Wall", "-o", str(staged), str(C_DIR / "runner.c")]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise BuildError(f"compiling the stepping loop failed ({' '.join(cmd)}):\n{proc.stderr}")
+    os.replace(staged, target)
+    return target
+
+
 def default_fmu_path(fmi_version: int = 2) -> Path:
     """The cached FMU used by ``ident.Plant`` when no path is given."""
     return build_fmu(fmi_version=fmi_version)

@@ -107,6 +107,74 @@ def cmd_study(args: argparse.Namespace) -> dict:
             "comparison": study.comparison().to_dict(orient="records")}
 
 
+def _read(args: argparse.Namespace):
+    from pathlib import Path
+
+    from .io import read_log
+
+    if str(args.log).endswith(".mat"):
+        from .emps import load_emps
+
+        return load_emps(args.log)
+    return read_log(Path(args.log), args.meta)
+
+
+def _identified(args: argparse.Namespace) -> tuple[object, dict]:
+    from .identify import identify
+
+    log = _read(args)
+    fit = identify(log, model=args.model, progress=not args.json)
+    if args.model == "rigid":
+        d = fit.to_dict()
+        out = {name: {"value": d[name]["value"], "ci95": d[name]["ci95_hac"], "ci95_ls": d[name]["ci95_ls"]}
+               for name in ("M", "Fv", "Fc", "offset")}
+        out.update(si={name: d[name]["value"] for name in ("M", "Fv", "Fc", "offset")},
+                   fit={"relative_error_pct": fit.relative_error_pct, "nrmse_motor": None, "nrmse_load": None},
+                   warnings=[], covariance="ci95: residual-based (Newey-West) sandwich; ci95_ls: noise-only LS")
+        return fit, out
+    return fit, fit.to_dict()
+
+
+def cmd_identify(args: argparse.Namespace) -> dict:
+    fit, out = _identified(args)
+    if args.out and args.model != "rigid":
+        from pathlib import Path
+
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        out["png"] = str(fit.plot(Path(args.out) / "identify.png"))
+    if not args.json:
+        for name, v in out.items():
+            if isinstance(v, dict) and "ci95" in v:
+                print(f"{name:10s} {v['value']:.6g}  95 % [{v['ci95'][0]:.6g}, {v['ci95'][1]:.6g}]")
+        print(f"fit: {out['fit']}")
+        for w in out["warnings"]:
+            print(f"warning: {w}")
+    return out
+
+
+def cmd_predict(args: argparse.Namespace) -> dict:
+    from .predict import predict
+
+    if args.model != "two-inertia":
+        raise ValueError("prediction needs the two-inertia model (K*, J_l*, f_l*): a load sensor in the log")
+    fit, out = _identified(args)
+    pred = predict(fit, n_draws=args.draws, n_pulses=args.pulses, n_steps=args.steps, workers=args.workers,
+                   scheduler=args.scheduler, progress=not args.json)
+    out.update(pred.to_dict())
+    if not args.json:
+        print(f"impulse resolution {pred.impulse_resolution_um:.4f} um (95 % {pred.impulse_ci95_um[0]:.4f} - "
+              f"{pred.impulse_ci95_um[1]:.4f}); linear {pred.linear_resolution_um:.3f} um "
+              f"({pred.linear_counts} counts)")
+    return out
+
+
+def _add_log_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("log", help="log file: CSV or Parquet with a JSON sidecar (physics.md section 4), or EMPS .mat")
+    p.add_argument("--meta", help="JSON sidecar (default: LOG.json or meta.json beside it)")
+    p.add_argument("--model", choices=("two-inertia", "rigid"), default="two-inertia")
+    p.add_argument("--json", action="store_true", help="print JSON")
+
+
 def _add_drive_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--param", action="append", metavar="NAME=VALUE",
                    help="drive parameter in SI (e.g. K_s=2e4) or K_star / J_l_star / f_l_star; repeatable")
@@ -163,6 +231,19 @@ def build_parser() -> argparse.ArgumentParser:
     _add_batch_options(p)
     _add_drive_options(p)
     p.set_defaults(func=cmd_study)
+
+    p = sub.add_parser("identify", help="estimate the drive's parameters from a log (CasADi + IPOPT, exact model)")
+    _add_log_options(p)
+    p.add_argument("--out", help="also write a plot of measured vs fitted load angle here")
+    p.set_defaults(func=cmd_identify)
+
+    p = sub.add_parser("predict", help="identify, then predict impulse and linear resolution with 95 % intervals")
+    _add_log_options(p)
+    p.add_argument("--draws", type=int, default=20, help="parameter draws for the interval (default 20)")
+    p.add_argument("--pulses", type=int, default=1000, help="pulses per impulse experiment (default 1000)")
+    p.add_argument("--steps", type=int, default=1000, help="measured PD steps (default 1000)")
+    _add_batch_options(p)
+    p.set_defaults(func=cmd_predict)
     return parser
 
 
@@ -170,7 +251,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         result = args.func(args)
-    except (ParameterError, ValueError, ThresholdNotFound, NoConsistentStep, SettleError) as exc:
+    except (ParameterError, ValueError, ThresholdNotFound, NoConsistentStep, SettleError, RuntimeError) as exc:
         print(f"hdrive {args.command}: error: {exc}", file=sys.stderr)
         return 2
     if args.json:

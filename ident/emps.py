@@ -451,6 +451,8 @@ def identify_rigid(log: DriveLog) -> RigidFit:
     ``numpy.linalg.lstsq`` (``RigidFit.theta_lstsq``, ``RigidFit.casadi_vs_lstsq``).
     """
     t0 = time.perf_counter()
+    if not {"gtau", "kp", "kv"} <= set(log.meta_extra):
+        return _identify_rigid_generic(log, t0)
     gtau, kp, kv = _require_emps(log)
     s = idim_settings(log.meta.sample_rate_hz)
     for _ in range(4):
@@ -463,6 +465,33 @@ def identify_rigid(log: DriveLog) -> RigidFit:
         if f_cl <= s.f_dyn_hz * (1 + 1e-9):
             break  # 5 w_dyn >= 5 f_cl and 2 w_dyn >= 2 f_cl: the PDF's rules hold
         s = idim_settings(log.meta.sample_rate_hz, f_cl, "identified closed-loop natural frequency")
+    return _rigid_result(log, s, sysm, theta, theta_ref, info, f_cl, t0)
+
+
+def _identify_rigid_generic(log: DriveLog, t0: float) -> RigidFit:
+    """IDIM-LS for a log without the EMPS controller data: the dynamics bandwidth w_dyn of the filter rules is the
+    frequency below which 99 % of the motor velocity's power lies (from the data, never the user)."""
+    v = np.diff(log.motor_pos_rad) * log.meta.sample_rate_hz
+    power = np.abs(np.fft.rfft(v - v.mean())) ** 2
+    freq = np.fft.rfftfreq(v.size, 1.0 / log.meta.sample_rate_hz)
+    f_dyn = float(max(1.0, freq[np.searchsorted(np.cumsum(power) / power.sum(), 0.99)]))
+    f_dyn = min(f_dyn, 0.99 * log.meta.sample_rate_hz / 10.0)  # keep the 5 w_dyn cut-off below Nyquist
+    s = idim_settings(log.meta.sample_rate_hz, f_dyn, "99 % of the motor velocity's power")
+    sysm, theta, theta_ref, info = _fit_once(log, s)
+    if theta[0] <= 0:
+        raise RuntimeError(f"{log.source}: identified inertia {theta[0]:g} is not positive; the log does not excite "
+                           "the dynamics")
+    fit = _rigid_result(log, s, sysm, theta, theta_ref, info, float("nan"), t0)
+    if fit.relative_error_pct > 25.0:
+        raise RuntimeError(f"{log.source}: the rigid model reconstructs the logged torque with "
+                           f"{fit.relative_error_pct:.0f} % relative error: this log is not rigid-body motion at "
+                           "the filter bandwidth (too fast an excitation, or a flexible drive: use the two-inertia "
+                           "model); no estimate is returned")
+    return fit
+
+
+def _rigid_result(log: DriveLog, s: IdimSettings, sysm: Any, theta: np.ndarray, theta_ref: np.ndarray,
+                  info: dict[str, Any], f_cl: float, t0: float) -> RigidFit:
     X, y = sysm.X, sysm.y
     n, p = X.shape
     e = y - X @ theta

@@ -1,0 +1,65 @@
+"""Synthetic "measured" logs from the plant FMU, for testing identification against known parameters.
+
+The documented default excitation (``default_excitation``) is a repeating block, in non-dimensional torque
+tau* = T/f_m, sampled at the log's rate and held between samples:
+
+1. a 1 ms pulse of tau* = +A (A cycling through 1.6, 2.5, 4.0), then 0.25 s of rest;
+2. a slow ramp from 0 to tau* = +1.15 over 60 ms, held 40 ms (the motor slides for tens of ms while the load rings
+   on it: this is what separates K_s from J_l), then back to 0 over 20 ms; 0.2 s of rest;
+3. the same pulse and ramp with negative sign.
+
+Measurements: the motor encoder is floor-quantized (``encoder_counts_per_rev``), the load sensor sees the arm angle
+plus white noise of ``load_noise_m`` at the arm tip (2 nm default) and an arbitrary zero offset.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .io import DriveLog, LogMeta
+from .params import DriveParams
+from .plant import Plant
+
+
+def default_excitation(params: DriveParams, duration_s: float = 10.0, rate_hz: float = 5000.0) -> np.ndarray:
+    """Motor torque [N m] per sample (held over each sample interval) for ``duration_s`` seconds."""
+    dt = 1.0 / rate_hz
+    n = int(round(duration_s * rate_hz))
+    tau = np.zeros(n + int(round(0.7 * rate_hz)))  # room for the last block, cut below
+
+    def seg(t0: float, t1: float) -> slice:
+        return slice(int(round(t0 / dt)), int(round(t1 / dt)))
+
+    t, k = 0.05, 0
+    amplitudes = (1.6, 2.5, 4.0)
+    while t < duration_s:
+        sign = 1.0 if k % 2 == 0 else -1.0
+        a = amplitudes[(k // 2) % len(amplitudes)]
+        tau[seg(t, t + 1e-3)] = sign * a
+        t += 1e-3 + 0.25
+        i = seg(t, t + 0.06)
+        tau[i] = sign * np.linspace(0, 1.15, i.stop - i.start, endpoint=False)
+        tau[seg(t + 0.06, t + 0.10)] = sign * 1.15
+        i = seg(t + 0.10, t + 0.12)
+        tau[i] = sign * np.linspace(1.15, 0, i.stop - i.start, endpoint=False)
+        t += 0.12 + 0.2
+        k += 1
+    return tau[:n] * params.f_m
+
+
+def synthetic_log(params: DriveParams, torque: np.ndarray | None = None, *, duration_s: float = 10.0,
+                  rate_hz: float = 5000.0, load_noise_m: float = 2e-9, load_offset_rad: float = 0.0,
+                  seed: int = 0, fmi_version: int = 2) -> DriveLog:
+    """Simulate ``torque`` (default: ``default_excitation``) through the FMU and measure it like a real drive."""
+    if torque is None:
+        torque = default_excitation(params, duration_s, rate_hz)
+    torque = np.asarray(torque, dtype=float)
+    rng = np.random.default_rng(seed)
+    with Plant(params, fmi_version=fmi_version) as plant:
+        q_m, q_l = plant.positions(torque, 1.0 / rate_hz)
+    count = params.count_rad
+    motor = np.floor(q_m / count) * count
+    load = q_l + load_offset_rad + rng.normal(0.0, load_noise_m / params.arm_length, q_l.size)
+    applied = np.append(torque, 0.0)  # the torque logged at sample k is the one held after it
+    meta = LogMeta(r=params.r, J_m_kgm2=params.J_m, f_m_Nm=params.f_m, arm_length_m=params.arm_length,
+                   encoder_counts_per_rev=params.encoder_counts_per_rev, sample_rate_hz=rate_hz)
+    return DriveLog(np.arange(q_m.size) / rate_hz, applied, motor, load, meta, source="synthetic")

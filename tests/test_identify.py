@@ -1,0 +1,107 @@
+"""Identification on synthetic logs produced by the FMU (known generating parameters), prediction, CLI, errors.
+
+The 20-random-drive accuracy and coverage study is a benchmark (bench/identify.py), not part of this run.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ident import DriveParams
+from ident.identify import IdentificationError, NAMES, equation_error_start, identify
+from ident.io import LogError, write_log
+from ident.predict import predict
+from ident.resolution import impulse_resolution
+from ident.synthetic import synthetic_log
+
+
+@pytest.fixture(scope="module")
+def nominal_fit():
+    p = DriveParams()
+    log = synthetic_log(p, duration_s=4.0, load_offset_rad=7e-6, seed=11)
+    return p, log, identify(log)
+
+
+def test_nominal_drive_within_0_1_percent(nominal_fit) -> None:
+    p, _, fit = nominal_fit
+    for name in NAMES:
+        est = fit.estimates[name]
+        assert est.value == pytest.approx(getattr(p, name), rel=1e-3), name
+        assert est.ci95[0] < est.value < est.ci95[1] and est.std > 0
+    assert fit.params.K_s == pytest.approx(p.K_s, rel=1e-3) and fit.params.J_l == pytest.approx(p.J_l, rel=1e-3)
+    assert fit.fit["residual_over_noise"] == pytest.approx(1.0, abs=0.2)  # the fit reaches the sensor's noise
+    # the load sensor's zero is found too, up to the encoder's sub-count start position (one count at the load)
+    assert abs(fit.load_offset_rad - 7e-6) <= p.r * p.count_rad
+    assert fit.warnings == []
+    assert fit.correlation.shape == (3, 3) and np.allclose(np.diag(fit.correlation), 1.0)
+
+
+def test_equation_error_start_is_data_driven(nominal_fit) -> None:
+    p, log, fit = nominal_fit
+    start = equation_error_start(log, p)
+    assert start["w_l2"] == pytest.approx(p.K_s / p.J_l, rel=0.05)  # the free ringing's frequency
+    assert start["f_peak_hz"] == pytest.approx(np.sqrt(p.K_s / p.J_l) / (2 * np.pi), rel=0.03)
+    assert fit.stages[-1]["window_s"] == pytest.approx(log.time_s[-1], rel=1e-3)  # continuation to the full log
+
+
+@pytest.mark.parametrize("K_star,J_l_star,f_l_star", [(3e5, 800.0, 0.03), (4e6, 6000.0, 0.6)])
+def test_other_drives_within_0_1_percent(K_star: float, J_l_star: float, f_l_star: float) -> None:
+    p = DriveParams.from_nondim(K_star, J_l_star, f_l_star)
+    fit = identify(synthetic_log(p, duration_s=3.0, seed=3))
+    for name in NAMES:
+        assert fit.estimates[name].value == pytest.approx(getattr(p, name), rel=1e-3), name
+
+
+def test_prediction_matches_the_true_plant(nominal_fit) -> None:
+    p, _, fit = nominal_fit
+    pred = predict(fit, n_draws=3, n_pulses=100, n_steps=40, workers=0)
+    truth = impulse_resolution(p, n_pulses=100).resolution_m * 1e6
+    assert pred.impulse_resolution_um == pytest.approx(truth, rel=0.05)
+    lo, hi = pred.impulse_ci95_um
+    assert lo <= hi and len(pred.draws) == 3
+    assert pred.linear_counts >= 1 and pred.linear_resolution_um > 0
+
+
+def test_cli_identify_and_predict_json(tmp_path: Path) -> None:
+    p = DriveParams()
+    csv, _ = write_log(synthetic_log(p, duration_s=2.0, seed=5), tmp_path / "run.csv")
+    proc = subprocess.run([sys.executable, "-m", "ident.cli", "identify", str(csv), "--json"], capture_output=True,
+                          text=True)
+    assert proc.returncode == 0, proc.stderr
+    d = json.loads(proc.stdout)
+    for name in NAMES:
+        assert set(d[name]) >= {"value", "ci95"} and d[name]["value"] == pytest.approx(getattr(p, name), rel=1e-3)
+    assert {"K_s_Nm_per_rad", "J_l_kgm2", "f_l_Nm"} <= set(d["si"])
+    assert {"nrmse_motor", "nrmse_load", "relative_error_pct"} <= set(d["fit"]) and d["warnings"] == []
+    proc = subprocess.run([sys.executable, "-m", "ident.cli", "predict", str(csv), "--draws", "2", "--pulses", "60",
+                           "--steps", "30", "--workers", "0", "--json"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    d = json.loads(proc.stdout)
+    assert set(d["impulse_resolution_um"]) == {"value", "ci95"} and d["impulse_resolution_um"]["value"] > 0
+    assert set(d["linear_resolution_um"]) == {"value", "ci95"}
+
+
+def test_log_without_load_sensor_needs_the_rigid_model() -> None:
+    log = synthetic_log(DriveParams(), duration_s=1.0)
+    log.load_pos_rad = None
+    with pytest.raises(LogError, match="needs the column load_pos_rad"):
+        identify(log)
+
+
+def test_motionless_log_is_refused() -> None:
+    log = synthetic_log(DriveParams(), np.zeros(5000))
+    with pytest.raises(IdentificationError):
+        identify(log)
+
+
+def test_rigid_model_refuses_a_log_it_cannot_explain() -> None:
+    """Pulses through a flexible drive are not rigid-body motion: no confident wrong number."""
+    log = synthetic_log(DriveParams(), duration_s=2.0)
+    log.load_pos_rad = None
+    with pytest.raises(RuntimeError, match="relative error"):
+        identify(log, model="rigid")
