@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -377,14 +377,24 @@ def _scale_scan(problem: OutputError, theta: np.ndarray, lo: np.ndarray, hi: np.
     periods = max(1.0, f_peak_hz * problem.stop / problem.log.meta.sample_rate_hz)
     span_w2 = 2.0 / (3.0 * periods)  # relative span of w^2 = 2 x relative span of w
     best, best_cost = theta, float(np.sum(problem.residuals(theta) ** 2))
-    for ln_a in np.log(np.geomspace(1 / span_J, span_J, 13)):
-        for ln_b in np.log(np.geomspace(1 / span_f, span_f, 7)):
-            for ln_c in np.log1p(np.linspace(-span_w2, span_w2, 7)):
-                cand = np.clip(theta + np.array([ln_a + ln_c, ln_a, ln_a + ln_b, 0.0]), lo, hi)
-                cost = float(np.sum(problem.residuals(cand) ** 2))
-                if cost < best_cost:
-                    best, best_cost = cand, cost
+
+    def scan(steps: list[np.ndarray]) -> None:
+        nonlocal best, best_cost
+        base = best
+        for step in steps:
+            cand = np.clip(base + step, lo, hi)
+            cost = float(np.sum(problem.residuals(cand) ** 2))
+            if cost < best_cost:
+                best, best_cost = cand, cost
         problem._cache.clear()
+
+    # scale and frequency together (they trade off in the both-slipping phases), then the friction
+    scan([np.array([ln_a + ln_c, ln_a, ln_a, 0.0]) for ln_a in np.log(np.geomspace(1 / span_J, span_J, 13))
+          for ln_c in np.log1p(np.linspace(-span_w2, span_w2, 7))])
+    scan([np.array([0.0, 0.0, ln_b, 0.0]) for ln_b in np.log(np.geomspace(1 / span_f, span_f, 9))])
+    # the initial deflection (a fraction of the static band) shapes the load's first breakaway; a wrong one is a
+    # local minimum that the other parameters cannot compensate
+    scan([np.array([0.0, 0.0, 0.0, d - best[3]]) for d in np.linspace(-1.0, 1.0, 21)])
     return best
 
 
@@ -420,7 +430,7 @@ def identify(log: DriveLog, *, model: str = "two-inertia", progress: bool = Fals
     base = DriveParams(J_m=meta.J_m_kgm2, f_m=meta.f_m_Nm, r=meta.r, arm_length=meta.arm_length_m,
                        encoder_counts_per_rev=meta.encoder_counts_per_rev)
     start = equation_error_start(log, base)
-    sigma_l = max(noise_std(log.load_pos_rad), 1e-15)
+    sigma_l = sigma_quiet = max(noise_std(log.load_pos_rad), 1e-15)
     lo, hi = _bounds()
     rate = meta.sample_rate_hz
     stop = _first_window(log, base, sigma_l, start["f_peak_hz"], first_window_periods)
@@ -486,7 +496,7 @@ def identify(log: DriveLog, *, model: str = "two-inertia", progress: bool = Fals
            "nrmse_motor": float(np.sqrt(np.mean((q_m - y_m) ** 2)) / np.std(y_m)),
            "relative_error_pct": float(100 * np.linalg.norm(q_l - y_l) / np.linalg.norm(y_l - y_l.mean())),
            "residual_rms_load_rad": float(np.sqrt(np.mean((q_l - y_l) ** 2))),
-           "residual_over_noise": float(np.sqrt(np.mean((q_l - y_l) ** 2)) / sigma_l)}
+           "residual_over_noise": float(np.sqrt(np.mean((q_l - y_l) ** 2)) / sigma_quiet)}
     warnings = _warnings(estimates, log, sigma_l, fit)
     return TwoInertiaFit(estimates, problem.params(theta), theta, cov_sand, cov_noise, fit, warnings, start, stages,
                          offset, sigma_l, time.perf_counter() - t0,
