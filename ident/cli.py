@@ -168,6 +168,15 @@ def cmd_predict(args: argparse.Namespace) -> dict:
     return out
 
 
+def cmd_emps_report(args: argparse.Namespace) -> dict:
+    from .emps import emps_report
+
+    report = emps_report(args.out, args.data)
+    if not args.json:
+        print(f"wrote {report}")
+    return {"report": str(report)}
+
+
 def _add_log_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", help="log file: CSV or Parquet with a JSON sidecar (physics.md section 4), or EMPS .mat")
     p.add_argument("--meta", help="JSON sidecar (default: LOG.json or meta.json beside it)")
@@ -244,6 +253,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=1000, help="measured PD steps (default 1000)")
     _add_batch_options(p)
     p.set_defaults(func=cmd_predict)
+
+    p = sub.add_parser("emps-report", help="the EMPS benchmark (real drive): rigid IDIM-LS side by side with the paper")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--data", help="folder with DATA_EMPS.mat and DATA_EMPS_PULSES.mat (default: ../shared/data/emps)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=cmd_emps_report)
     return parser
 
 
