@@ -105,3 +105,17 @@ def test_rigid_model_refuses_a_log_it_cannot_explain() -> None:
     log.load_pos_rad = None
     with pytest.raises(RuntimeError, match="relative error"):
         identify(log, model="rigid")
+
+
+def test_model_mismatch_widens_the_intervals_and_warns() -> None:
+    """An effect the model lacks (a slow 30 nm sway of the load sensor) must show: a warning, and residual-based
+    (sandwich) intervals wider than the noise-only Cramer-Rao bound, still covering the truth."""
+    p = DriveParams()
+    log = synthetic_log(p, duration_s=2.0, seed=4)
+    log.load_pos_rad = log.load_pos_rad + 30e-9 / p.arm_length * np.sin(2 * np.pi * 3.0 * log.time_s)
+    fit = identify(log)
+    assert any("residuals" in w and "missing" in w for w in fit.warnings)
+    for i, name in enumerate(NAMES):
+        est = fit.estimates[name]
+        assert est.std / est.value > 2 * np.sqrt(fit.cov_noise_only[i, i])
+        assert est.ci95[0] <= getattr(p, name) <= est.ci95[1], name
