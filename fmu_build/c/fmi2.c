@@ -18,7 +18,6 @@ typedef struct {
     int logging_on;
 } Instance;
 
-#define SERIAL_MAGIC 0x48444d32u /* "HDM2" */
 
 static void log_msg(Instance *in, fmi2Status status, const char *category, const char *fmt, ...) {
     if (!in->cb.logger) return;
@@ -214,18 +213,11 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
     return n == 0 ? fmi2OK : fail((Instance *)c, "fmi2SetString", "the model has no String variables");
 }
 
-/* FMU state: a copy of the model struct (the complete simulation state) plus the instance phase. */
-typedef struct {
-    HDModel model;
-    Phase phase;
-    double start_time;
-} Snapshot;
-
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *state) {
     Instance *in = (Instance *)c;
-    Snapshot *s = (Snapshot *)*state;
+    HDSnapshot *s = (HDSnapshot *)*state;
     if (!s) {
-        s = (Snapshot *)in->cb.allocateMemory(1, sizeof(Snapshot));
+        s = (HDSnapshot *)in->cb.allocateMemory(1, sizeof(HDSnapshot));
         if (!s) return fail(in, "fmi2GetFMUstate", "out of memory");
     }
     s->model = in->model;
@@ -237,10 +229,10 @@ fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *state) {
 
 fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate state) {
     Instance *in = (Instance *)c;
-    const Snapshot *s = (const Snapshot *)state;
+    const HDSnapshot *s = (const HDSnapshot *)state;
     if (!s) return fail(in, "fmi2SetFMUstate", "NULL state");
     in->model = s->model;
-    in->phase = s->phase;
+    in->phase = (Phase)s->phase;
     in->start_time = s->start_time;
     return fmi2OK;
 }
@@ -257,32 +249,28 @@ fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *state) {
 /* Serialized form: magic, size of the snapshot, snapshot bytes. Same platform and FMU build only. */
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_t *size) {
     (void)c; (void)state;
-    *size = 2 * sizeof(uint32_t) + sizeof(Snapshot);
+    *size = hd_snapshot_bytes();
     return fmi2OK;
 }
 
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state, fmi2Byte bytes[], size_t size) {
     Instance *in = (Instance *)c;
-    uint32_t head[2] = {SERIAL_MAGIC, (uint32_t)sizeof(Snapshot)};
-    if (!state || size < sizeof head + sizeof(Snapshot)) return fail(in, "fmi2SerializeFMUstate", "buffer too small");
-    memcpy(bytes, head, sizeof head);
-    memcpy(bytes + sizeof head, state, sizeof(Snapshot));
+    if (!state || size < hd_snapshot_bytes()) return fail(in, "fmi2SerializeFMUstate", "buffer too small");
+    hd_snapshot_write((const HDSnapshot *)state, (unsigned char *)bytes);
     return fmi2OK;
 }
 
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size_t size, fmi2FMUstate *state) {
     Instance *in = (Instance *)c;
-    uint32_t head[2];
-    if (size != sizeof head + sizeof(Snapshot))
-        return fail(in, "fmi2DeSerializeFMUstate", "serialized state has the wrong size for this FMU");
-    memcpy(head, bytes, sizeof head);
-    if (head[0] != SERIAL_MAGIC || head[1] != sizeof(Snapshot))
-        return fail(in, "fmi2DeSerializeFMUstate", "serialized state does not come from this FMU");
+    char err[256];
+    HDSnapshot snap;
+    if (hd_snapshot_read((const unsigned char *)bytes, size, &snap, err, sizeof err) != HD_OK)
+        return fail(in, "fmi2DeSerializeFMUstate", err);
     if (!*state) {
-        *state = in->cb.allocateMemory(1, sizeof(Snapshot));
+        *state = in->cb.allocateMemory(1, sizeof(HDSnapshot));
         if (!*state) return fail(in, "fmi2DeSerializeFMUstate", "out of memory");
     }
-    memcpy(*state, bytes + sizeof head, sizeof(Snapshot));
+    *(HDSnapshot *)*state = snap;
     return fmi2OK;
 }
 

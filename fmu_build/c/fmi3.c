@@ -19,14 +19,6 @@ typedef struct {
     int logging_on;
 } Instance;
 
-/* FMU state snapshot: the complete model plus the instance phase. */
-typedef struct {
-    HDModel model;
-    Phase phase;
-    double start_time;
-} Snapshot;
-
-#define SERIAL_MAGIC 0x48444d33u /* "HDM3" */
 #define M_INST (1u << ST_INSTANTIATED)
 #define M_INIT (1u << ST_INITIALIZATION)
 #define M_STEP (1u << ST_STEP)
@@ -272,9 +264,9 @@ fmi3Status fmi3SetClock(fmi3Instance c, const fmi3ValueReference vr[], size_t nv
 
 fmi3Status fmi3GetFMUState(fmi3Instance c, fmi3FMUState *state) {
     Instance *in = (Instance *)c;
-    Snapshot *s = (Snapshot *)*state;
+    HDSnapshot *s = (HDSnapshot *)*state;
     if (!s) {
-        s = (Snapshot *)malloc(sizeof(Snapshot));
+        s = (HDSnapshot *)malloc(sizeof(HDSnapshot));
         if (!s) return fail(in, "fmi3GetFMUState", "out of memory");
     }
     s->model = in->model;
@@ -286,10 +278,10 @@ fmi3Status fmi3GetFMUState(fmi3Instance c, fmi3FMUState *state) {
 
 fmi3Status fmi3SetFMUState(fmi3Instance c, fmi3FMUState state) {
     Instance *in = (Instance *)c;
-    const Snapshot *s = (const Snapshot *)state;
+    const HDSnapshot *s = (const HDSnapshot *)state;
     if (!s) return fail(in, "fmi3SetFMUState", "NULL state");
     in->model = s->model;
-    in->phase = s->phase;
+    in->phase = (Phase)s->phase;
     in->start_time = s->start_time;
     return fmi3OK;
 }
@@ -305,32 +297,28 @@ fmi3Status fmi3FreeFMUState(fmi3Instance c, fmi3FMUState *state) {
 
 fmi3Status fmi3SerializedFMUStateSize(fmi3Instance c, fmi3FMUState state, size_t *size) {
     (void)c; (void)state;
-    *size = 2 * sizeof(uint32_t) + sizeof(Snapshot);
+    *size = hd_snapshot_bytes();
     return fmi3OK;
 }
 
 fmi3Status fmi3SerializeFMUState(fmi3Instance c, fmi3FMUState state, fmi3Byte bytes[], size_t size) {
     Instance *in = (Instance *)c;
-    uint32_t head[2] = {SERIAL_MAGIC, (uint32_t)sizeof(Snapshot)};
-    if (!state || size < sizeof head + sizeof(Snapshot)) return fail(in, "fmi3SerializeFMUState", "buffer too small");
-    memcpy(bytes, head, sizeof head);
-    memcpy(bytes + sizeof head, state, sizeof(Snapshot));
+    if (!state || size < hd_snapshot_bytes()) return fail(in, "fmi3SerializeFMUState", "buffer too small");
+    hd_snapshot_write((const HDSnapshot *)state, (unsigned char *)bytes);
     return fmi3OK;
 }
 
 fmi3Status fmi3DeserializeFMUState(fmi3Instance c, const fmi3Byte bytes[], size_t size, fmi3FMUState *state) {
     Instance *in = (Instance *)c;
-    uint32_t head[2];
-    if (size != sizeof head + sizeof(Snapshot))
-        return fail(in, "fmi3DeserializeFMUState", "serialized state has the wrong size for this FMU");
-    memcpy(head, bytes, sizeof head);
-    if (head[0] != SERIAL_MAGIC || head[1] != sizeof(Snapshot))
-        return fail(in, "fmi3DeserializeFMUState", "serialized state does not come from this FMU");
+    char err[256];
+    HDSnapshot snap;
+    if (hd_snapshot_read((const unsigned char *)bytes, size, &snap, err, sizeof err) != HD_OK)
+        return fail(in, "fmi3DeserializeFMUState", err);
     if (!*state) {
-        *state = malloc(sizeof(Snapshot));
+        *state = malloc(sizeof(HDSnapshot));
         if (!*state) return fail(in, "fmi3DeserializeFMUState", "out of memory");
     }
-    memcpy(*state, bytes + sizeof head, sizeof(Snapshot));
+    *(HDSnapshot *)*state = snap;
     return fmi3OK;
 }
 

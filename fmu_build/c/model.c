@@ -152,6 +152,40 @@ static HDStatus check_all(const HDModel *m, char *err, size_t errlen) {
     return HD_OK;
 }
 
+/* ---------------------------------------------------------------- FMU state snapshots -------------------- */
+
+#define HD_SNAPSHOT_MAGIC 0x48444d53u /* "HDMS" */
+
+static uint32_t token_hash(void) { /* FNV-1a of the instantiation token: tells builds apart */
+    uint32_t h = 2166136261u;
+    for (const char *p = HD_INSTANTIATION_TOKEN; *p; ++p) h = (h ^ (uint8_t)*p) * 16777619u;
+    return h;
+}
+
+size_t hd_snapshot_bytes(void) { return 3 * sizeof(uint32_t) + sizeof(HDSnapshot); }
+
+void hd_snapshot_write(const HDSnapshot *s, unsigned char *bytes) {
+    uint32_t head[3] = {HD_SNAPSHOT_MAGIC, (uint32_t)sizeof(HDSnapshot), token_hash()};
+    memcpy(bytes, head, sizeof head);
+    memcpy(bytes + sizeof head, s, sizeof *s);
+}
+
+HDStatus hd_snapshot_read(const unsigned char *bytes, size_t size, HDSnapshot *s, char *err, size_t errlen) {
+    uint32_t head[3];
+    if (size != hd_snapshot_bytes()) {
+        snprintf(err, errlen, "serialized state has the wrong size for this FMU (%zu bytes, expected %zu)", size,
+                 hd_snapshot_bytes());
+        return HD_ERROR;
+    }
+    memcpy(head, bytes, sizeof head);
+    if (head[0] != HD_SNAPSHOT_MAGIC || head[1] != sizeof(HDSnapshot) || head[2] != token_hash()) {
+        snprintf(err, errlen, "serialized state does not come from this FMU");
+        return HD_ERROR;
+    }
+    memcpy(s, bytes + sizeof head, sizeof *s);
+    return HD_OK;
+}
+
 /* ---------------------------------------------------------------- stick/slip decisions ------------------- */
 
 static double deflection(const HDModel *m) { return m->r * m->q_m - m->q_l; }

@@ -62,6 +62,19 @@ HDStatus hd_set_integer(HDModel *m, uint32_t vr, int32_t value, char *err, size_
 /* Checks every parameter, then sets the state from the *_start parameters at time t0. */
 HDStatus hd_initialize(HDModel *m, double t0, char *err, size_t errlen);
 
+/* A snapshot of an instance (FMU state): the model plus the FMI glue's phase and start time. Serialized as a
+ * header (magic, snapshot size, a hash of this build's instantiation token) and the snapshot's bytes: for the same
+ * platform and the same FMU build only, which the header lets hd_snapshot_read check. */
+typedef struct {
+    HDModel model;
+    int32_t phase;
+    double start_time;
+} HDSnapshot;
+
+size_t hd_snapshot_bytes(void);
+void hd_snapshot_write(const HDSnapshot *s, unsigned char *bytes);
+HDStatus hd_snapshot_read(const unsigned char *bytes, size_t size, HDSnapshot *s, char *err, size_t errlen);
+
 /* Advances the plant by h seconds with the current motor_torque held. Exact stick-slip inside.
  * On error the model is left as it was before the call. */
 HDStatus hd_do_step(HDModel *m, double h, char *err, size_t errlen);
