@@ -246,7 +246,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="also write a plot of measured vs fitted load angle here")
     p.set_defaults(func=cmd_identify)
 
-    p = sub.add_parser("predict", help="identify, then predict impulse and linear resolution with 95 % intervals")
+    p = sub.add_parser("predict", help="identify, then predict impulse and linear resolution with 95 %% intervals")
     _add_log_options(p)
     p.add_argument("--draws", type=int, default=20, help="parameter draws for the interval (default 20)")
     p.add_argument("--pulses", type=int, default=1000, help="pulses per impulse experiment (default 1000)")

@@ -63,3 +63,12 @@ def test_cli_rejects_bad_parameter(capsys) -> None:
     err = capsys.readouterr().err
     assert "K_s = -5" in err and "allowed range" in err
     assert not Path("unused").exists()
+
+
+@pytest.mark.parametrize("command", ["", "build-fmu", "demo", "resolution", "sweep", "study", "identify", "predict",
+                                     "emps-report"])
+def test_help_of_every_command(command: str) -> None:
+    proc = subprocess.run([sys.executable, "-m", "ident.cli", *([command] if command else []), "--help"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert "usage: hdrive" in proc.stdout
