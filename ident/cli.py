@@ -125,12 +125,15 @@ def _identified(args: argparse.Namespace) -> tuple[object, dict]:
     log = _read(args)
     fit = identify(log, model=args.model, progress=not args.json)
     if args.model == "rigid":
+        from .emps import rigid_warnings
+
         d = fit.to_dict()
         out = {name: {"value": d[name]["value"], "ci95": d[name]["ci95_hac"], "ci95_ls": d[name]["ci95_ls"]}
                for name in ("M", "Fv", "Fc", "offset")}
         out.update(si={name: d[name]["value"] for name in ("M", "Fv", "Fc", "offset")},
                    fit={"relative_error_pct": fit.relative_error_pct, "nrmse_motor": None, "nrmse_load": None},
-                   warnings=[], covariance="ci95: residual-based (Newey-West) sandwich; ci95_ls: noise-only LS")
+                   warnings=rigid_warnings(fit),
+                   covariance="ci95: residual-based (Newey-West) sandwich; ci95_ls: noise-only LS")
         return fit, out
     return fit, fit.to_dict()
 

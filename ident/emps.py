@@ -477,7 +477,9 @@ def _identify_rigid_generic(log: DriveLog, t0: float) -> RigidFit:
     f_dyn = float(max(1.0, freq[np.searchsorted(np.cumsum(power) / power.sum(), 0.99)]))
     f_dyn = min(f_dyn, 0.99 * log.meta.sample_rate_hz / 10.0)  # keep the 5 w_dyn cut-off below Nyquist
     s = idim_settings(log.meta.sample_rate_hz, f_dyn, "99 % of the motor velocity's power")
-    sysm, theta, theta_ref, info = _fit_once(log, s)
+    sysm = _moving_rows(_idim_system(log, s))
+    theta_ref = np.linalg.lstsq(sysm.X, sysm.y, rcond=None)[0]
+    theta, info = _solve_ls_casadi(sysm.X, sysm.y)
     if theta[0] <= 0:
         raise RuntimeError(f"{log.source}: identified inertia {theta[0]:g} is not positive; the log does not excite "
                            "the dynamics")
@@ -488,6 +490,34 @@ def _identify_rigid_generic(log: DriveLog, t0: float) -> RigidFit:
                            "the filter bandwidth (too fast an excitation, or a flexible drive: use the two-inertia "
                            "model); no estimate is returned")
     return fit
+
+
+def rigid_warnings(fit: RigidFit) -> list[str]:
+    """A warning for each of M and Fc whose residual-based (HAC) 1-sigma exceeds 10 % of its value."""
+    out = []
+    for param in (fit.M, fit.Fc):
+        rel = param.std_hac / abs(param.value) if param.value else math.inf
+        if rel > 0.10:
+            out.append(f"{param.name} is poorly determined by this log (1-sigma {100 * rel:.0f} %, residual-based): "
+                       "excite the axis with slower, larger sweeps in both directions")
+    return out
+
+
+def _moving_rows(sysm: _Idim) -> _Idim:
+    """Only the rows where the axis clearly slides: in a stick phase the friction force is whatever holds the
+    axis (not +-Fc), and the filters smear the stop into the neighbouring rows, so both would bias Fc and M. The
+    threshold is 10 % of the 99th percentile of |velocity|, and two rows on each side of a stop are dropped too."""
+    v = sysm.X[:, 1]
+    moving = np.abs(v) > 0.1 * np.percentile(np.abs(v), 99)
+    keep = moving.copy()
+    for k in (1, 2):
+        keep[k:] &= moving[:-k]
+        keep[:-k] &= moving[k:]
+    keep &= np.sign(v) == np.sign(np.roll(v, 1))
+    if keep.sum() < 20:
+        raise RuntimeError("the axis barely slides in this log: the rigid model's inertia and friction are not "
+                           "excited (fewer than 20 moving rows)")
+    return _Idim(sysm.X0, sysm.X[keep], sysm.y[keep], sysm.t[keep])
 
 
 def _rigid_result(log: DriveLog, s: IdimSettings, sysm: Any, theta: np.ndarray, theta_ref: np.ndarray,
