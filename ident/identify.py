@@ -13,12 +13,13 @@ Method (the exact model inside the fit, never a smoothed copy):
    Gauss-Newton Hessian J^T J. Unknowns: ln K*, ln J_l*, ln f_l*, the initial deflection (as a fraction of the
    static band f_l/K_s, the log starting at rest); the load sensor's zero offset is projected out in closed form.
 3. **Horizon continuation**: the output-error cost over a long log is rugged (small parameter changes reorder
-   stick/slip events), a short window is smooth; the fit starts on the first window and doubles it up to the whole
-   log, each stage starting from the previous optimum.
+   stick/slip events), a short window is smooth; the fit starts on a window of the first motion plus 8 ringing
+   periods and grows it by 1.3 up to the whole log, each stage starting from the previous optimum after a cheap
+   grid over scale x frequency, friction and initial deflection (``_scale_scan``).
 4. **Uncertainty**: at the optimum, two covariances of the log-parameters: *noise-only* (sigma^2 (J^T J)^-1, the
    Cramer-Rao bound for the model and the estimated noise) and *sandwich* (residual-based, with blocks of samples
    to allow for correlated misfit: it grows when the model does not fit). The reported 95 % intervals use the
-   sandwich (it is never smaller than the noise-only one by construction of ``max``).
+   larger of the two for each parameter.
 """
 from __future__ import annotations
 
@@ -398,7 +399,7 @@ def _scale_scan(problem: OutputError, theta: np.ndarray, lo: np.ndarray, hi: np.
     return best
 
 
-def _first_window(log: DriveLog, base: DriveParams, sigma_l: float, f_peak: float, periods: float) -> int:
+def _first_window(log: DriveLog, sigma_l: float, f_peak: float, periods: float) -> int:
     """End of the first fitting window: the first motion plus ``periods`` ringing periods. Short on purpose: the
     start's few-% error in the ringing frequency must not add up to a whole period of phase inside it."""
     moved = np.flatnonzero((np.abs(log.load_pos_rad - log.load_pos_rad[0]) > 20 * sigma_l)
@@ -430,14 +431,23 @@ def identify(log: DriveLog, *, model: str = "two-inertia", progress: bool = Fals
     base = DriveParams(J_m=meta.J_m_kgm2, f_m=meta.f_m_Nm, r=meta.r, arm_length=meta.arm_length_m,
                        encoder_counts_per_rev=meta.encoder_counts_per_rev)
     start = equation_error_start(log, base)
-    sigma_l = sigma_quiet = max(noise_std(log.load_pos_rad), 1e-15)
+    sigma_quiet = max(noise_std(log.load_pos_rad), 1e-15)
+    stop = _first_window(log, sigma_quiet, start["f_peak_hz"], first_window_periods)
+    theta, sigma_l, stages = _first_stage(log, base, start, stop, sigma_quiet, max_iter)
+    problem, theta, sigma_l = _continuation(log, base, start, theta, sigma_l, stages, stop, growth, stage_iter,
+                                            progress)
+    try:
+        return _result(log, problem, theta, start, stages, sigma_l, sigma_quiet, time.perf_counter() - t0)
+    finally:
+        problem.close()
+
+
+def _first_stage(log: DriveLog, base: DriveParams, start: dict[str, float], stop: int, sigma_l: float,
+                 max_iter: int) -> tuple[np.ndarray, float, list[dict[str, Any]]]:
+    """The first window. The equation-error start fixes w_l^2 to a few % and f_l/J_l to a factor ~2, not the scale
+    J_l*: search the output-error cost over a grid (J_l* x friction factor x frequency factor), run IPOPT from the
+    three best grid points and keep the best optimum. Records the grid's best point in ``start``."""
     lo, hi = _bounds()
-    rate = meta.sample_rate_hz
-    stop = _first_window(log, base, sigma_l, start["f_peak_hz"], first_window_periods)
-    stages: list[dict[str, Any]] = []
-    # The equation-error start fixes w_l^2 to a few % and f_l/J_l to a factor ~2, not the scale J_l*: search the
-    # output-error cost of the first window over a grid (J_l* x friction factor x frequency factor), then run
-    # IPOPT from the three best grid points and keep the best optimum.
     first = OutputError(log, base, stop, sigma_l)
     try:
         grid = []
@@ -448,42 +458,48 @@ def identify(log: DriveLog, *, model: str = "two-inertia", progress: bool = Fals
                     grid.append((float(np.sum(first.residuals(th) ** 2)), tuple(th)))
                     first._cache.clear()
         grid.sort()
-        g0 = np.exp(np.array(grid[0][1][:3]))
-        start = {**start, "K_star": float(g0[0]), "J_l_star": float(g0[1]), "f_l_star": float(g0[2])}
-        best = None
-        for cost0, th in grid[:3]:
-            th_opt, info = _casadi_fit(first, np.array(th), lo, hi, max_iter)
-            if best is None or info["cost"] < best[1]["cost"]:
-                best = (th_opt, info)
-        theta = best[0]
-        stages.append({"window_s": stop / rate, **best[1], "evaluations": first.evaluations, "multistart": 3,
-                       **{k: float(v) for k, v in zip(NAMES, np.exp(theta[:3]))}})
-        sigma_l = first.load_residual_rms(theta)
+        start.update(zip(NAMES, map(float, np.exp(np.array(grid[0][1][:3])))))
+        fits = [_casadi_fit(first, np.array(th), lo, hi, max_iter) for _, th in grid[:3]]
+        theta, info = min(fits, key=lambda f: f[1]["cost"])
+        stage = {"window_s": stop / log.meta.sample_rate_hz, **info, "evaluations": first.evaluations,
+                 "multistart": 3, **dict(zip(NAMES, map(float, np.exp(theta[:3]))))}
+        return theta, first.load_residual_rms(theta), [stage]
     finally:
         first.close()
+
+
+def _continuation(log: DriveLog, base: DriveParams, start: dict[str, float], theta: np.ndarray, sigma_l: float,
+                  stages: list[dict[str, Any]], stop: int, growth: float, stage_iter: int,
+                  progress: bool) -> tuple[OutputError, np.ndarray, float]:
+    """Grow the window by ``growth`` up to the whole log, each stage a scan then IPOPT from the previous optimum;
+    returns the whole-log problem (open), the optimum and the load residual level."""
+    lo, hi = _bounds()
+    rate = log.meta.sample_rate_hz
     while True:
         stop = min(log.n, int(growth * stop))
         problem = OutputError(log, base, stop, sigma_l)
-        try:
-            theta = _scale_scan(problem, theta, lo, hi, len(stages), start["f_peak_hz"])
-            # each stage starts at the previous optimum, where Gauss-Newton needs a handful of iterations; more
-            # only chase the finite-difference noise of a cost with many stick/slip kinks
-            theta, info = _casadi_fit(problem, theta, lo, hi, stage_iter)
-            stages.append({"window_s": stop / rate, **info, "evaluations": problem.evaluations,
-                           **{k: float(v) for k, v in zip(NAMES, np.exp(theta[:3]))}})
-            if progress:
-                print(f"  window {stop / rate:6.2f} s: {info['status']}, {info['iterations']} iterations, "
-                      f"K* {math.exp(theta[0]):.6g}, J_l* {math.exp(theta[1]):.6g}, f_l* {math.exp(theta[2]):.6g}")
-            sigma_l = problem.load_residual_rms(theta)
-            if stop >= log.n:
-                block = max(10, int(rate / max(start["f_peak_hz"], 1.0)))
-                cov_noise, cov_sand, J = _covariances(problem, theta, block)
-                q_m, q_l, offset = problem.simulate(theta)
-                break
-        finally:
-            if stop < log.n:
-                problem.close()
-    problem.close()
+        theta = _scale_scan(problem, theta, lo, hi, len(stages), start["f_peak_hz"])
+        # each stage starts at the previous optimum, where Gauss-Newton needs a handful of iterations; more only
+        # chase the finite-difference noise of a cost with many stick/slip kinks
+        theta, info = _casadi_fit(problem, theta, lo, hi, stage_iter)
+        stages.append({"window_s": stop / rate, **info, "evaluations": problem.evaluations,
+                       **dict(zip(NAMES, map(float, np.exp(theta[:3]))))})
+        if progress:
+            print(f"  window {stop / rate:6.2f} s: {info['status']}, {info['iterations']} iterations, "
+                  f"K* {math.exp(theta[0]):.6g}, J_l* {math.exp(theta[1]):.6g}, f_l* {math.exp(theta[2]):.6g}")
+        # at the optimum of a model that fits, the load misfit is the sensor's noise: the next stage's weight
+        sigma_l = problem.load_residual_rms(theta)
+        if stop >= log.n:
+            return problem, theta, sigma_l
+        problem.close()
+
+
+def _result(log: DriveLog, problem: OutputError, theta: np.ndarray, start: dict[str, float],
+            stages: list[dict[str, Any]], sigma_l: float, sigma_quiet: float, elapsed: float) -> TwoInertiaFit:
+    """Estimates with intervals, fit quality and warnings at the whole-log optimum."""
+    block = max(10, int(log.meta.sample_rate_hz / max(start["f_peak_hz"], 1.0)))  # one ringing period
+    cov_noise, cov_sand, _ = _covariances(problem, theta, block)
+    q_m, q_l, offset = problem.simulate(theta)
     cov_noise, cov_sand = cov_noise[:3, :3], cov_sand[:3, :3]
     std_ln = np.sqrt(np.maximum(np.diag(cov_sand), np.diag(cov_noise)))
     estimates = {}
@@ -491,19 +507,18 @@ def identify(log: DriveLog, *, model: str = "two-inertia", progress: bool = Fals
         v = float(math.exp(theta[i]))
         estimates[name] = Estimate(v, (v * math.exp(-Z95 * std_ln[i]), v * math.exp(Z95 * std_ln[i])),
                                    v * float(std_ln[i]))
-    y_l, y_m = log.load_pos_rad, log.motor_pos_rad + 0.5 * base.count_rad
+    y_l, y_m = problem.y_l, problem.y_m
     fit = {"nrmse_load": float(np.sqrt(np.mean((q_l - y_l) ** 2)) / np.std(y_l)),
            "nrmse_motor": float(np.sqrt(np.mean((q_m - y_m) ** 2)) / np.std(y_m)),
            "relative_error_pct": float(100 * np.linalg.norm(q_l - y_l) / np.linalg.norm(y_l - y_l.mean())),
            "residual_rms_load_rad": float(np.sqrt(np.mean((q_l - y_l) ** 2))),
            "residual_over_noise": float(np.sqrt(np.mean((q_l - y_l) ** 2)) / sigma_quiet)}
-    warnings = _warnings(estimates, log, sigma_l, fit)
-    return TwoInertiaFit(estimates, problem.params(theta), theta, cov_sand, cov_noise, fit, warnings, start, stages,
-                         offset, sigma_l, time.perf_counter() - t0,
+    return TwoInertiaFit(estimates, problem.params(theta), theta, cov_sand, cov_noise, fit, _warnings(estimates, fit),
+                         start, stages, offset, sigma_l, elapsed,
                          {"time_s": log.time_s, "load_measured": y_l, "load_model": q_l, "motor_model": q_m})
 
 
-def _warnings(estimates: dict[str, Estimate], log: DriveLog, sigma_l: float, fit: dict[str, float]) -> list[str]:
+def _warnings(estimates: dict[str, Estimate], fit: dict[str, float]) -> list[str]:
     out = []
     for name, e in estimates.items():
         rel = e.std / e.value
