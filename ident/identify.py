@@ -209,6 +209,8 @@ def _casadi_fit(problem: OutputError, theta0: np.ndarray, lower: np.ndarray, upp
                         # longer changes rather than insisting on a gradient below the finite-difference noise.
                         "ipopt": {"print_level": 0, "max_iter": max_iter, "tol": 1e-10, "mu_init": 1e-6,
                                   "acceptable_tol": 1e-4, "acceptable_obj_change_tol": 1e-8, "acceptable_iter": 3,
+                                  # backtrack fast: a failed step on a kink is not worth 40 halvings
+                                  "alpha_red_factor": 0.1,
                                   "sb": "yes"}})
     sol = solver(x0=theta0, lbx=lower, ubx=upper)
     stats = solver.stats()
@@ -477,6 +479,8 @@ def _continuation(log: DriveLog, base: DriveParams, start: dict[str, float], the
     rate = log.meta.sample_rate_hz
     while True:
         stop = min(log.n, int(growth * stop))
+        if growth * stop >= log.n:  # the next stage would add only a sliver: take the whole log now
+            stop = log.n
         problem = OutputError(log, base, stop, sigma_l)
         theta = _scale_scan(problem, theta, lo, hi, len(stages), start["f_peak_hz"])
         # each stage starts at the previous optimum, where Gauss-Newton needs a handful of iterations; more only
