@@ -24,6 +24,7 @@ Method (the exact model inside the fit, never a smoothed copy):
 from __future__ import annotations
 
 import math
+import sys
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -490,7 +491,8 @@ def _continuation(log: DriveLog, base: DriveParams, start: dict[str, float], the
                        **dict(zip(NAMES, map(float, np.exp(theta[:3]))))})
         if progress:
             print(f"  window {stop / rate:6.2f} s: {info['status']}, {info['iterations']} iterations, "
-                  f"K* {math.exp(theta[0]):.6g}, J_l* {math.exp(theta[1]):.6g}, f_l* {math.exp(theta[2]):.6g}")
+                  f"K* {math.exp(theta[0]):.6g}, J_l* {math.exp(theta[1]):.6g}, f_l* {math.exp(theta[2]):.6g}",
+                  file=sys.stderr)
         # at the optimum of a model that fits, the load misfit is the sensor's noise: the next stage's weight
         sigma_l = problem.load_residual_rms(theta)
         if stop >= log.n:
