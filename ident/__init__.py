@@ -8,8 +8,8 @@ Public API:
 - ``impulse_resolution(...)``, ``linear_resolution(...)``: the paper's resolution protocols.
 """
 from .params import DriveParams, ParameterError
-from .plant import Plant, PlantError, PlantState, Sample
-from .controllers import ImpulseController, LinearPD, SettleError
+from .plant import Plant, PlantError, PlantState, Sample, SettleError
+from .controllers import ImpulseController, LinearPD
 from .resolution import (ImpulseResolution, LinearResolution, NoConsistentStep, ThresholdNotFound,
                          impulse_experiment, impulse_resolution, linear_resolution)
 

@@ -14,13 +14,10 @@ from typing import TYPE_CHECKING
 
 from .checks import number, whole
 from .params import DriveParams
+from .plant import SettleError
 
 if TYPE_CHECKING:  # pragma: no cover
     from .plant import Plant, Sample
-
-
-class SettleError(RuntimeError):
-    """The plant did not come to a final rest within the allowed time (e.g. a limit cycle)."""
 
 
 class ImpulseController:
@@ -39,18 +36,8 @@ class ImpulseController:
         self.max_rest_s = number("max_rest_s", max_rest_s, positive=True)
 
     def to_rest(self, plant: "Plant") -> "Sample":
-        """Zero torque until the plant is at rest *under zero torque* (at least one zero-torque step).
-
-        A body stuck under the pulse torque need not stay stuck when the torque drops to zero, so rest is only
-        trusted after a step with zero torque.
-        """
-        s = plant.step(0.0, self.rest_step_s)
-        t_end = plant.time + self.max_rest_s
-        while not s.at_rest:
-            if plant.time > t_end:
-                raise SettleError(f"the plant did not come to rest within {self.max_rest_s} s after a pulse")
-            s = plant.step(0.0, self.rest_step_s)
-        return s
+        """Zero torque until the plant is at rest under zero torque (``Plant.run_to_rest``)."""
+        return plant.run_to_rest(self.rest_step_s, self.max_rest_s)
 
     def pulse(self, plant: "Plant") -> float:
         """One pulse from rest to rest; returns the arm increment [m] between the two rests.

@@ -46,6 +46,10 @@ class PlantError(RuntimeError):
     """The FMU rejected a call; the message is the FMU's own log message (it names the variable and range)."""
 
 
+class SettleError(PlantError):
+    """The plant did not come to a final rest within the allowed time (e.g. a limit cycle)."""
+
+
 class Sample(NamedTuple):
     """Outputs of the plant at one communication point (SI)."""
 
@@ -345,12 +349,16 @@ class Plant:
         return out
 
     def run_to_rest(self, dt: float = 1e-3, max_time: float = 60.0) -> Sample:
-        """Zero torque until both bodies are stuck; raises if that takes longer than ``max_time`` [s]."""
+        """Zero torque until both bodies are stuck; ``SettleError`` if that takes longer than ``max_time`` [s].
+
+        At least one zero-torque step is always taken: a body stuck under a torque need not stay stuck when the
+        torque drops to zero, so rest is only trusted after a step with zero torque. Since the FMU is event-exact,
+        ``dt`` changes only how often rest is polled, never the state reached."""
         s = self.step(0.0, dt)
         t_end = self.time + max_time
         while not s.at_rest:
             if self.time > t_end:
-                raise PlantError(f"the plant did not come to rest within {max_time} s")
+                raise SettleError(f"the plant did not come to rest within {max_time} s")
             s = self.step(0.0, dt)
         return s
 
