@@ -70,7 +70,7 @@ VARIABLES: tuple[Variable, ...] = (
     _out("q_l", 41, "rad", "Load (arm) angle"),
     _out("v_m", 42, "rad/s", "Motor velocity"),
     _out("v_l", 43, "rad/s", "Load velocity"),
-    _out("spring_torque", 44, "N.m", "Spring torque K_s (r q_m - q_l) on the load"),
+    _out("spring_torque", 44, "N.m", "Total transmitted torque on the load: K_s (d + hardening d^3) + hysteresis_state"),
     _out("motor_stuck", 45, None, "Motor is stuck (zero velocity, net torque within its static level)", "Boolean"),
     _out("load_stuck", 46, None, "Load is stuck (zero velocity, net torque within its static level)", "Boolean"),
     _out("encoder_count", 47, None, "Motor encoder count floor(q_m / (2 pi / counts_per_rev)), saturated to int32",
@@ -78,6 +78,29 @@ VARIABLES: tuple[Variable, ...] = (
     _out("arm_position", 48, "m", "Arm tip position arm_length * q_l"),
     _out("input_work", 49, "J", "Work done by the motor torque since the start (exact per segment)"),
     _out("friction_work", 50, "J", "Energy dissipated by friction since the start (exact per segment)"),
+    _out("deflection", 51, "rad", "Spring deflection d = r q_m + kinematic_error sin(2 q_m + phase) - q_l (load side)"),
+    _out("hysteresis_state", 52, "N.m", "Torque z of the Dahl hysteresis element (0 when hysteresis_torque = 0)"),
+    _out("motor_friction_torque", 53, "N.m",
+         "Friction torque F_m on the motor (J_m v_m' = T - g tau_s - F_m); while stuck, the holding reaction"),
+    _out("load_friction_torque", 54, "N.m",
+         "Friction torque F_l on the load (J_l v_l' = tau_s - F_l); while stuck, the holding reaction"),
+    # Optional effects of the discrepancy library (physics.md section 5). Every start value switches its effect
+    # off; with all of them off the plant is the base model above, solved in closed form.
+    _param("b_m", 100, 0.0, 0.0, 1e6, "N.m.s/rad", "Motor viscous friction coefficient"),
+    _param("b_l", 101, 0.0, 0.0, 1e6, "N.m.s/rad", "Load viscous friction coefficient"),
+    _param("stribeck_ratio", 102, 0.0, 0.0, 10.0, "1",
+           "Static level / Coulomb level - 1 (both bodies): Stribeck friction f (1 + s exp(-(v/vs)^2))"),
+    _param("stribeck_velocity", 103, 1e-3, 1e-12, 1e6, "rad/s",
+           "Stribeck velocity vs on the load side; the motor uses stribeck_velocity / r"),
+    _param("friction_asymmetry", 104, 0.0, -0.99, 0.99, "1",
+           "Friction levels are f (1 + a) for positive and f (1 - a) for negative motion (both bodies)"),
+    _param("hardening", 105, 0.0, 0.0, 1e20, "1/rad2", "K3/K_s: spring torque K_s (d + hardening d^3)"),
+    _param("hysteresis_torque", 106, 0.0, 0.0, 1e6, "N.m",
+           "Saturation torque H of a Dahl hysteresis element in parallel with the spring (0 = off)"),
+    _param("hysteresis_stiffness", 107, 1.0e4, 1e-3, 1e15, "N.m/rad", "Initial stiffness sigma of the Dahl element"),
+    _param("kinematic_error", 108, 0.0, 0.0, 1.0, "rad",
+           "Amplitude A of the transmission error (load side), twice per wave-generator turn"),
+    _param("kinematic_error_phase", 109, 0.0, -10.0, 10.0, "rad", "Phase phi of the transmission error"),
 )
 
 BY_NAME: dict[str, Variable] = {v.name: v for v in VARIABLES}
@@ -95,6 +118,8 @@ UNITS: dict[str, dict[str, int]] = {
     "kg.m2": {"kg": 1, "m": 2},
     "m": {"m": 1},
     "J": {"kg": 1, "m": 2, "s": -2},
+    "N.m.s/rad": {"kg": 1, "m": 2, "s": -1, "rad": -1},
+    "1/rad2": {"rad": -2},
     "1": {},
 }
 

@@ -171,6 +171,40 @@ def cmd_predict(args: argparse.Namespace) -> dict:
     return out
 
 
+def cmd_diagnose(args: argparse.Namespace) -> dict:
+    from .diagnose import diagnose
+
+    log = _read(args)
+    holdout = None
+    if args.holdout:
+        holdout = _read(argparse.Namespace(log=args.holdout, meta=args.meta))
+    diag = diagnose(log, model=args.model, holdout=holdout, out_dir=args.out, max_effects=args.max_effects,
+                    resolution_pulses=args.pulses, workers=args.workers, progress=not args.json)
+    out = diag.to_dict()
+    if not args.json:
+        print(diag.to_frame().to_string(index=False))
+        for e in diag.effects:
+            print(f"named: {e.name} = {e.magnitude:.4g} {e.unit} (95 % {e.ci95[0]:.4g} .. {e.ci95[1]:.4g})")
+        for u in diag.unexplained:
+            print(f"unexplained: {u['regime']}: {u['detail']}")
+        if diag.files.get("report"):
+            print(f"wrote {diag.files['report']}" + (f" and {diag.fmu}" if diag.fmu else ""))
+    return out
+
+
+def cmd_paper_effects(args: argparse.Namespace) -> dict:
+    from .paper_effects import write_paper_effects
+
+    sweep, report = write_paper_effects(args.out, levels=args.levels, n_pulses=args.pulses, workers=args.workers,
+                                        scheduler=args.scheduler, base=_params_from(args), progress=not args.json)
+    summary = sweep.summary()
+    if not args.json:
+        cols = ["case", "slope_um", "r2", "growth", "first_over_median_hi", "linear", "avalanche"]
+        print(summary[cols].to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+        print(f"wrote {report}")
+    return {"report": str(report), "summary": json.loads(summary.to_json(orient="records"))}
+
+
 def cmd_emps_report(args: argparse.Namespace) -> dict:
     from .emps import emps_report
 
@@ -256,6 +290,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=1000, help="measured PD steps (default 1000)")
     _add_batch_options(p)
     p.set_defaults(func=cmd_predict)
+
+    p = sub.add_parser("diagnose", help="find where the model and the log disagree, name the missing effects, refit "
+                       "(report, plots and the fitted FMU)")
+    _add_log_options(p)
+    p.add_argument("--out", required=True, help="output directory (diagnosis.md, diagnosis.json, PNGs, fitted FMU)")
+    p.add_argument("--holdout", help="a second log to hold back for scoring (default: the last 30 %% of LOG)")
+    p.add_argument("--max-effects", type=int, default=3, help="stop after naming this many effects (default 3)")
+    p.add_argument("--pulses", type=int, default=200,
+                   help="pulses per impulse experiment for each model's predicted resolution (0: skip; default 200)")
+    p.add_argument("--workers", type=int, default=0,
+                   help="candidates refitted in parallel on this many local Dask workers (default 0: serial)")
+    p.set_defaults(func=cmd_diagnose)
+
+    p = sub.add_parser("paper-effects", help="the friction sweep with and without each effect of the library: which "
+                                             "effects reproduce the paper's linear trend and avalanche")
+    p.add_argument("--out", required=True, help="output directory for paper_effects.md, CSVs and plot")
+    p.add_argument("--levels", type=int, default=13, help="friction levels from f_l* = 0.01 to 1 (default 13)")
+    p.add_argument("--pulses", type=int, default=300, help="pulses per impulse experiment N (default 300)")
+    _add_drive_options(p)
+    _add_batch_options(p)
+    p.set_defaults(func=cmd_paper_effects)
 
     p = sub.add_parser("emps-report", help="the EMPS benchmark (real drive): rigid IDIM-LS side by side with the paper")
     p.add_argument("--out", required=True, help="output directory")

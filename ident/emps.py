@@ -468,15 +468,23 @@ def identify_rigid(log: DriveLog) -> RigidFit:
     return _rigid_result(log, s, sysm, theta, theta_ref, info, f_cl, t0)
 
 
-def _identify_rigid_generic(log: DriveLog, t0: float) -> RigidFit:
-    """IDIM-LS for a log without the EMPS controller data: the dynamics bandwidth w_dyn of the filter rules is the
-    frequency below which 99 % of the motor velocity's power lies (from the data, never the user)."""
+def generic_idim_settings(log: DriveLog) -> IdimSettings:
+    """The filter settings of a log without the EMPS controller data: w_dyn is the frequency below which 99 % of
+    the motor velocity's power lies (kept low enough for the 5 w_dyn cut-off to stay below Nyquist)."""
     v = np.diff(log.motor_pos_rad) * log.meta.sample_rate_hz
     power = np.abs(np.fft.rfft(v - v.mean())) ** 2
+    if not np.isfinite(power.sum()) or power.sum() <= 0:
+        raise RuntimeError(f"{log.source}: the motor position never changes: the log does not move the axis")
     freq = np.fft.rfftfreq(v.size, 1.0 / log.meta.sample_rate_hz)
     f_dyn = float(max(1.0, freq[np.searchsorted(np.cumsum(power) / power.sum(), 0.99)]))
     f_dyn = min(f_dyn, 0.99 * log.meta.sample_rate_hz / 10.0)  # keep the 5 w_dyn cut-off below Nyquist
-    s = idim_settings(log.meta.sample_rate_hz, f_dyn, "99 % of the motor velocity's power")
+    return idim_settings(log.meta.sample_rate_hz, f_dyn, "99 % of the motor velocity's power")
+
+
+def _identify_rigid_generic(log: DriveLog, t0: float) -> RigidFit:
+    """IDIM-LS for a log without the EMPS controller data: the dynamics bandwidth w_dyn of the filter rules is the
+    frequency below which 99 % of the motor velocity's power lies (from the data, never the user)."""
+    s = generic_idim_settings(log)
     sysm = _moving_rows(_idim_system(log, s))
     theta_ref = np.linalg.lstsq(sysm.X, sysm.y, rcond=None)[0]
     theta, info = _solve_ls_casadi(sysm.X, sysm.y)
@@ -503,17 +511,23 @@ def rigid_warnings(fit: RigidFit) -> list[str]:
     return out
 
 
-def _moving_rows(sysm: _Idim) -> _Idim:
-    """Only the rows where the axis clearly slides: in a stick phase the friction force is whatever holds the
-    axis (not +-Fc), and the filters smear the stop into the neighbouring rows, so both would bias Fc and M. The
-    threshold is 10 % of the 99th percentile of |velocity|, and two rows on each side of a stop are dropped too."""
-    v = sysm.X[:, 1]
+def _moving_mask(v: np.ndarray) -> np.ndarray:
+    """The rows of :func:`_moving_rows` (decimated velocity ``v``): |v| above 10 % of its 99th percentile, two rows
+    on each side of a stop dropped, and no sign change from the previous row."""
     moving = np.abs(v) > 0.1 * np.percentile(np.abs(v), 99)
     keep = moving.copy()
     for k in (1, 2):
         keep[k:] &= moving[:-k]
         keep[:-k] &= moving[k:]
     keep &= np.sign(v) == np.sign(np.roll(v, 1))
+    return keep
+
+
+def _moving_rows(sysm: _Idim) -> _Idim:
+    """Only the rows where the axis clearly slides: in a stick phase the friction force is whatever holds the
+    axis (not +-Fc), and the filters smear the stop into the neighbouring rows, so both would bias Fc and M. The
+    threshold is 10 % of the 99th percentile of |velocity|, and two rows on each side of a stop are dropped too."""
+    keep = _moving_mask(sysm.X[:, 1])
     if keep.sum() < 20:
         raise RuntimeError("the axis barely slides in this log: the rigid model's inertia and friction are not "
                            "excited (fewer than 20 moving rows)")

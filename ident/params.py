@@ -51,6 +51,17 @@ class DriveParams:
     r: float = V.BY_NAME["r"].start           # gear ratio q_l/q_m (< 1)
     encoder_counts_per_rev: int = V.BY_NAME["encoder_counts_per_rev"].start
     arm_length: float = V.BY_NAME["arm_length"].start  # m
+    # Optional effects of the discrepancy library (physics.md section 5); the defaults switch every effect off.
+    b_m: float = V.BY_NAME["b_m"].start                      # N m s/rad, motor viscous friction
+    b_l: float = V.BY_NAME["b_l"].start                      # N m s/rad, load viscous friction
+    stribeck_ratio: float = V.BY_NAME["stribeck_ratio"].start  # static / Coulomb level - 1
+    stribeck_velocity: float = V.BY_NAME["stribeck_velocity"].start  # rad/s, load side (motor: / r)
+    friction_asymmetry: float = V.BY_NAME["friction_asymmetry"].start  # levels f (1 +- a) for +- motion
+    hardening: float = V.BY_NAME["hardening"].start          # 1/rad^2, spring K_s (d + hardening d^3)
+    hysteresis_torque: float = V.BY_NAME["hysteresis_torque"].start  # N m, Dahl saturation torque H (0 = off)
+    hysteresis_stiffness: float = V.BY_NAME["hysteresis_stiffness"].start  # N m/rad, Dahl initial stiffness
+    kinematic_error: float = V.BY_NAME["kinematic_error"].start  # rad, transmission error amplitude (load side)
+    kinematic_error_phase: float = V.BY_NAME["kinematic_error_phase"].start  # rad
 
     def __post_init__(self) -> None:
         for f in fields(self):

@@ -75,7 +75,8 @@ COLUMN_UNITS = {"time": "time_s", "q_m": "q_m_rad", "q_l": "q_l_rad", "v_m": "v_
                 "spring_torque": "spring_torque_Nm", "arm_position": "arm_position_m",
                 "motor_torque": "motor_torque_Nm"}
 
-_REAL_OUTPUTS = ("q_m", "q_l", "v_m", "v_l", "spring_torque", "arm_position", "input_work", "friction_work")
+_REAL_OUTPUTS = ("q_m", "q_l", "v_m", "v_l", "spring_torque", "arm_position", "input_work", "friction_work",
+                 "deflection", "hysteresis_state", "motor_friction_torque", "load_friction_torque")
 _INITIAL_STATE = ("q_m_start", "q_l_start", "v_m_start", "v_l_start")
 
 

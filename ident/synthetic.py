@@ -63,3 +63,36 @@ def synthetic_log(params: DriveParams, torque: np.ndarray | None = None, *, dura
     meta = LogMeta(r=params.r, J_m_kgm2=params.J_m, f_m_Nm=params.f_m, arm_length_m=params.arm_length,
                    encoder_counts_per_rev=params.encoder_counts_per_rev, sample_rate_hz=rate_hz)
     return DriveLog(np.arange(q_m.size) / rate_hz, applied, motor, load, meta, source="synthetic")
+
+
+def diagnosis_excitation(params: DriveParams, duration_s: float = 10.0, rate_hz: float = 5000.0,
+                         seed: int = 1) -> np.ndarray:
+    """Motor torque [N m] per sample for testing the discrepancy workflow: a seeded random sequence, unlike the
+    identifier's fixed default (``default_excitation``), of the kind an engineer logs on a real joint:
+
+    - pulses of random width (0.5-2 ms) and amplitude (tau* 1.3-5, random sign), each followed by 0.1-0.35 s of
+      rest (the load rings and stops);
+    - slow trapezoidal moves (tau* 1.05-1.6, 0.1-0.4 s plateau, 20-60 ms ramps, random sign) that turn the motor
+      by up to a few revolutions (kinematic error, Stribeck and viscous friction show in these), then 0.25 s rest.
+
+    Moves and pulses alternate at random (40 % moves); the signs are drawn so the axis wanders both ways.
+    """
+    rng = np.random.default_rng(seed)
+    dt = 1.0 / rate_hz
+    n = int(round(duration_s * rate_hz))
+    tau = np.zeros(n + int(round(1.5 * rate_hz)))
+    k = int(round(0.05 / dt))
+    while k < n:
+        sign = rng.choice((-1.0, 1.0))
+        if rng.random() < 0.4:
+            level = rng.uniform(1.05, 1.6)
+            ramp, hold = int(rng.uniform(0.02, 0.06) / dt), int(rng.uniform(0.1, 0.4) / dt)
+            tau[k:k + ramp] = sign * level * np.arange(ramp) / ramp
+            tau[k + ramp:k + ramp + hold] = sign * level
+            tau[k + ramp + hold:k + 2 * ramp + hold] = sign * level * (1 - np.arange(ramp) / ramp)
+            k += 2 * ramp + hold + int(0.25 / dt)
+        else:
+            width = max(1, int(round(rng.uniform(0.5e-3, 2e-3) / dt)))
+            tau[k:k + width] = sign * rng.uniform(1.3, 5.0)
+            k += width + int(rng.uniform(0.1, 0.35) / dt)
+    return tau[:n] * params.f_m

@@ -1,5 +1,9 @@
 /* HarmonicDrive plant physics: closed-form segments and exactly located stick-slip events. See model.h.
  *
+ * Two paths share the Karnopp stick/slip rules, the FMU state and the variable access:
+ *
+ * 1. Base model (every optional effect off): closed form.
+ *
  * Segment solution. With each body's stick/slip state fixed and the torque held, the deflection obeys
  *     d'' = -w^2 d + c,   w^2 = K_s (a_m r^2/J_m + a_l/J_l),   c = a_m r F_m/J_m - a_l F_l/J_l
  * (a_* = 1 for a slipping body, F_m = T - f_m dir_m, F_l = -f_l dir_l), so d(t), its integrals and both bodies'
@@ -12,6 +16,21 @@
  * that is >= 0, which is computed directly; bisection on that monotone flank finds it to the last bit. Events are
  * evaluated through the same state formulas that are committed, so the stick/slip decision taken after an event
  * always agrees with the event that triggered it (no Zeno loops from rounding).
+ *
+ * 2. General propagator (any optional effect on: viscous, Stribeck, asymmetric friction, hardening spring, Dahl
+ * hysteresis, kinematic error). With d = r q_m + A sin(2 q_m + phi) - q_l, g = dd/dq_m = r + 2 A cos(2 q_m + phi),
+ * tau_s = K_s (d + hardening d^3) + z:
+ *     J_m v_m' = T - g tau_s - F_m          J_l v_l' = tau_s - F_l
+ * A slipping body feels F = dir f (1 + a dir)(1 + s exp(-(v/vs)^2)) + b v; a stuck body stays stuck while its net
+ * torque N lies in [-f (1 - a)(1 + s), f (1 + a)(1 + s)]. The Dahl element z' = sigma dd (1 - sgn(dd) z/H) is
+ * solved exactly on each branch of constant sgn(dd): z is a function of d (anchored where the branch began).
+ * Each body's stick/slip mode and slip direction and the hysteresis branch are MODES held fixed inside a substep,
+ * where the right-hand side is then smooth: classical RK4 with fixed substeps (400 per period of the stiffest
+ * oscillation, at most a tenth of each viscous or Stribeck time constant; shortened further while a fast transient
+ * is under way: a body in its Stribeck range, an unsaturated hysteresis branch), the two works as quadratures.
+ * An event inside a substep (a slipping body's velocity reaching 0, a stuck body's N leaving its band, dd changing
+ * sign) is located by bisection to the last bit on the substep fraction, each trial being one RK4 step from the
+ * substep start; that very state is committed and the modes are re-decided from it (no Zeno loops).
  */
 #include "model.h"
 
@@ -188,11 +207,11 @@ HDStatus hd_snapshot_read(const unsigned char *bytes, size_t size, HDSnapshot *s
 
 /* ---------------------------------------------------------------- stick/slip decisions ------------------- */
 
-static double deflection(const HDModel *m) { return m->r * m->q_m - m->q_l; }
+static double base_deflection(const HDModel *m) { return m->r * m->q_m - m->q_l; }
 
 /* Net non-friction torque on each body: depends on positions and input only, so the two decisions are independent. */
-static double net_motor(const HDModel *m) { return m->motor_torque - m->r * m->K_s * deflection(m); }
-static double net_load(const HDModel *m) { return m->K_s * deflection(m); }
+static double net_motor(const HDModel *m) { return m->motor_torque - m->r * m->K_s * base_deflection(m); }
+static double net_load(const HDModel *m) { return m->K_s * base_deflection(m); }
 
 /* Karnopp rule for one body at zero velocity: stick while |N| <= f, else break away in the direction of N. */
 static void decide_at_zero_velocity(double net, double level, int32_t *stuck, int32_t *dir) {
@@ -216,8 +235,148 @@ static void settle_modes(HDModel *m) {
     }
 }
 
+/* ---------------------------------------------------------------- optional effects: forces and modes ---- */
+
+/* Any effect on selects the general propagator; all off keeps the closed-form path, bit for bit. */
+static int effects_on(const HDModel *m) {
+    return m->b_m != 0.0 || m->b_l != 0.0 || m->stribeck_ratio != 0.0 || m->friction_asymmetry != 0.0
+        || m->hardening != 0.0 || m->hysteresis_torque != 0.0 || m->kinematic_error != 0.0;
+}
+
+/* The state the general propagator integrates: positions, velocities and the two work quadratures. */
+typedef struct {
+    double q_m, q_l, v_m, v_l, w_in, w_fr;
+} FxState;
+
+/* Spring at given positions: twist d (with kinematic error), g = dd/dq_m, hysteresis torque z, total tau_s. */
+typedef struct {
+    double d, g, z, tau;
+} FxSpring;
+
+/* Net torques (N), friction torques (F: the holding reaction N while stuck) and accelerations of both bodies. */
+typedef struct {
+    FxSpring s;
+    double N_m, N_l, F_m, F_l, a_m, a_l;
+} FxForces;
+
+/* z on the current Dahl branch: the exact solution of z' = sigma dd (1 - dir z/H) with dir held, as a function of
+ * the twist: z = z0 + (z0 - dir H) expm1(-sigma dir (d - d0)/H), exactly z0 at the anchor d0. */
+static double hysteresis_z(const HDModel *m, double d) {
+    double H = m->hysteresis_torque;
+    if (!(H > 0.0)) return 0.0;
+    double dir = m->hyst_dir, x = -m->hysteresis_stiffness * dir * (d - m->hyst_d0) / H;
+    if (x > 50.0) x = 50.0; /* only reachable transiently against the branch, before its event: no overflow */
+    return m->hyst_z0 + (m->hyst_z0 - dir * H) * expm1(x);
+}
+
+static FxSpring fx_spring(const HDModel *m, double q_m, double q_l) {
+    FxSpring s;
+    s.d = m->r * q_m - q_l;
+    s.g = m->r;
+    if (m->kinematic_error != 0.0) {
+        double ph = 2.0 * q_m + m->kinematic_error_phase;
+        s.d = m->r * q_m + m->kinematic_error * sin(ph) - q_l;
+        s.g = m->r + 2.0 * m->kinematic_error * cos(ph);
+    }
+    s.z = hysteresis_z(m, s.d);
+    s.tau = m->K_s * (s.d + m->hardening * s.d * s.d * s.d) + s.z;
+    return s;
+}
+
+/* Static level for motion in direction dir: f (1 + a dir)(1 + s). */
+static double static_level(const HDModel *m, double f, int32_t dir) {
+    return f * (1.0 + m->friction_asymmetry * dir) * (1.0 + m->stribeck_ratio);
+}
+
+/* Friction of a slipping body. At v = 0 it is dir * static_level bit for bit (exp(0) = 1, b 0 = 0), so a body that
+ * just broke away (|N| beyond its level as doubles) accelerates in its slip direction exactly. */
+static double slip_friction(const HDModel *m, double f, double b, double vs, int32_t dir, double v) {
+    double x = v / vs;
+    return dir * (f * (1.0 + m->friction_asymmetry * dir) * (1.0 + m->stribeck_ratio * exp(-x * x))) + b * v;
+}
+
+static FxState fx_state(const HDModel *m) {
+    FxState y = {m->q_m, m->q_l, m->v_m, m->v_l, m->input_work, m->friction_work};
+    return y;
+}
+
+static FxForces fx_forces(const HDModel *m, const FxState *y) {
+    FxForces f;
+    f.s = fx_spring(m, y->q_m, y->q_l);
+    f.N_m = m->motor_torque - f.s.g * f.s.tau;
+    f.N_l = f.s.tau;
+    f.F_m = f.N_m, f.a_m = 0.0;
+    f.F_l = f.N_l, f.a_l = 0.0;
+    if (!m->motor_stuck) {
+        f.F_m = slip_friction(m, m->f_m, m->b_m, m->stribeck_velocity / m->r, m->motor_dir, y->v_m);
+        f.a_m = (f.N_m - f.F_m) / m->J_m;
+    }
+    if (!m->load_stuck) {
+        f.F_l = slip_friction(m, m->f_l, m->b_l, m->stribeck_velocity, m->load_dir, y->v_l);
+        f.a_l = (f.N_l - f.F_l) / m->J_l;
+    }
+    return f;
+}
+
+/* Karnopp rule with the asymmetric static band: stick while -L(-1) <= N <= L(+1), else break away towards N. */
+static void fx_decide(const HDModel *m, double net, double f, int32_t *stuck, int32_t *dir) {
+    if (net > static_level(m, f, 1)) {
+        *stuck = 0, *dir = 1;
+    } else if (-net > static_level(m, f, -1)) {
+        *stuck = 0, *dir = -1;
+    } else {
+        *stuck = 1;
+    }
+}
+
+/* Starts a new hysteresis branch at the current twist and z (z is continuous across the switch). */
+static void fx_flip_hysteresis(HDModel *m, const FxSpring *s) {
+    m->hyst_z0 = s->z;
+    m->hyst_d0 = s->d;
+    m->hyst_dir = -m->hyst_dir;
+}
+
+/* Re-decides every body at zero velocity (stuck, exactly 0, or - with friction - at or past zero against its slip
+ * direction), then the hysteresis branch from the sign of the twist rate dd (of its rate when dd = 0). */
+static void fx_settle(HDModel *m) {
+    FxState y = fx_state(m);
+    FxSpring s = fx_spring(m, y.q_m, y.q_l);
+    if (m->motor_stuck || m->v_m == 0.0 || (m->f_m > 0.0 && -m->motor_dir * m->v_m >= 0.0)) {
+        m->v_m = 0.0;
+        fx_decide(m, m->motor_torque - s.g * s.tau, m->f_m, &m->motor_stuck, &m->motor_dir);
+    }
+    if (m->load_stuck || m->v_l == 0.0 || (m->f_l > 0.0 && -m->load_dir * m->v_l >= 0.0)) {
+        m->v_l = 0.0;
+        fx_decide(m, s.tau, m->f_l, &m->load_stuck, &m->load_dir);
+    }
+    if (m->hysteresis_torque > 0.0) {
+        double dd = s.g * m->v_m - m->v_l;
+        if (dd == 0.0) {
+            y = fx_state(m);
+            FxForces f = fx_forces(m, &y);
+            dd = s.g * f.a_m - f.a_l; /* the sign dd takes next (the velocity terms are zero) */
+        }
+        if (m->hyst_dir * dd < 0.0) fx_flip_hysteresis(m, &s);
+        m->hysteresis_state = s.z;
+    }
+}
+
 static void update_outputs(HDModel *m) {
-    m->spring_torque = m->K_s * deflection(m);
+    if (effects_on(m)) {
+        FxState y = fx_state(m);
+        FxForces f = fx_forces(m, &y);
+        m->spring_torque = f.s.tau;
+        m->deflection = f.s.d;
+        m->hysteresis_state = f.s.z;
+        m->motor_friction_torque = f.F_m;
+        m->load_friction_torque = f.F_l;
+    } else {
+        m->spring_torque = m->K_s * base_deflection(m);
+        m->deflection = base_deflection(m);
+        m->hysteresis_state = 0.0;
+        m->motor_friction_torque = m->motor_stuck ? net_motor(m) : m->f_m * m->motor_dir;
+        m->load_friction_torque = m->load_stuck ? net_load(m) : m->f_l * m->load_dir;
+    }
     m->arm_position = m->arm_length * m->q_l;
     double count = floor(m->q_m * (double)m->encoder_counts_per_rev / (2.0 * HD_PI));
     if (count > 2147483647.0) count = 2147483647.0; /* int32 output: saturate rather than overflow */
@@ -237,7 +396,10 @@ HDStatus hd_initialize(HDModel *m, double t0, char *err, size_t errlen) {
     m->load_dir = m->v_l < 0 ? -1 : 1;
     m->input_work = m->friction_work = 0.0;
     m->event_count = 0;
-    settle_modes(m);
+    m->hysteresis_state = m->hyst_z0 = 0.0; /* the hysteresis element starts relaxed, on a rising branch */
+    m->hyst_dir = 1;
+    m->hyst_d0 = fx_spring(m, m->q_m, m->q_l).d;
+    if (effects_on(m)) fx_settle(m); else settle_modes(m);
     update_outputs(m);
     return HD_OK;
 }
@@ -291,7 +453,7 @@ static Segment make_segment(const HDModel *m) {
     double w2 = m->K_s * ((s.motor_slips ? m->r * m->r / m->J_m : 0.0) + (s.load_slips ? 1.0 / m->J_l : 0.0));
     s.w = sqrt(w2);
     s.c = (s.motor_slips ? m->r * s.F_m / m->J_m : 0.0) - (s.load_slips ? s.F_l / m->J_l : 0.0);
-    s.d0 = deflection(m);
+    s.d0 = base_deflection(m);
     s.dd0 = (s.motor_slips ? m->r * m->v_m : 0.0) - (s.load_slips ? m->v_l : 0.0);
     /* Net torque minus friction, as in the decision: a body that just broke away (|N| > f as doubles) gets an
      * acceleration of the right sign exactly, so it cannot "return to zero velocity" through rounding. */
@@ -463,7 +625,208 @@ static void commit(HDModel *m, const Segment *s, const Motion *mo) {
 
 static int state_finite(const HDModel *m) {
     return isfinite(m->q_m) && isfinite(m->q_l) && isfinite(m->v_m) && isfinite(m->v_l) && isfinite(m->input_work)
-        && isfinite(m->friction_work);
+        && isfinite(m->friction_work) && isfinite(m->hysteresis_state);
+}
+
+/* ---------------------------------------------------------------- general propagator ---------------------- */
+
+#define HD_SUBSTEPS_PER_PERIOD 400.0
+#define HD_MAX_SUBSTEPS_PER_STEP 1.0e8
+#define HD_TRANSIENT_RESOLUTION 0.05
+
+static FxState fx_deriv(const HDModel *m, const FxState *y) {
+    FxForces f = fx_forces(m, y);
+    double v_m = m->motor_stuck ? 0.0 : y->v_m, v_l = m->load_stuck ? 0.0 : y->v_l;
+    FxState dy = {v_m, v_l, f.a_m, f.a_l, m->motor_torque * v_m, f.F_m * v_m + f.F_l * v_l};
+    return dy;
+}
+
+static FxState fx_axpy(const FxState *y, double c, const FxState *k) {
+    FxState r = {y->q_m + c * k->q_m, y->q_l + c * k->q_l, y->v_m + c * k->v_m, y->v_l + c * k->v_l,
+                 y->w_in + c * k->w_in, y->w_fr + c * k->w_fr};
+    return r;
+}
+
+/* One classical RK4 step of length h with the modes of m held; a stuck body keeps its state bit for bit. */
+static FxState fx_rk4(const HDModel *m, const FxState *y, double h) {
+    FxState k1 = fx_deriv(m, y), y2 = fx_axpy(y, 0.5 * h, &k1);
+    FxState k2 = fx_deriv(m, &y2), y3 = fx_axpy(y, 0.5 * h, &k2);
+    FxState k3 = fx_deriv(m, &y3), y4 = fx_axpy(y, h, &k3);
+    FxState k4 = fx_deriv(m, &y4), sum;
+    sum.q_m = k1.q_m + 2.0 * (k2.q_m + k3.q_m) + k4.q_m;
+    sum.q_l = k1.q_l + 2.0 * (k2.q_l + k3.q_l) + k4.q_l;
+    sum.v_m = k1.v_m + 2.0 * (k2.v_m + k3.v_m) + k4.v_m;
+    sum.v_l = k1.v_l + 2.0 * (k2.v_l + k3.v_l) + k4.v_l;
+    sum.w_in = k1.w_in + 2.0 * (k2.w_in + k3.w_in) + k4.w_in;
+    sum.w_fr = k1.w_fr + 2.0 * (k2.w_fr + k3.w_fr) + k4.w_fr;
+    FxState out = fx_axpy(y, h / 6.0, &sum);
+    if (m->motor_stuck) out.q_m = y->q_m, out.v_m = 0.0;
+    if (m->load_stuck) out.q_l = y->q_l, out.v_l = 0.0;
+    return out;
+}
+
+typedef enum { FX_MOTOR_VELOCITY, FX_LOAD_VELOCITY, FX_MOTOR_BREAK, FX_LOAD_BREAK, FX_HYSTERESIS } FxEventKind;
+
+typedef struct {
+    FxEventKind kind;
+    int32_t sign; /* break events: +1 / -1 for the two edges of the static band */
+} FxEvent;
+
+/* Does the event fire in state y (modes of m)? Velocity: -dir v >= 0; break: +-N beyond its static level (strict);
+ * hysteresis: dd against the branch direction (strict). */
+static int fx_fires(const HDModel *m, const FxEvent *e, const FxState *y) {
+    FxSpring s;
+    switch (e->kind) {
+    case FX_MOTOR_VELOCITY: return -m->motor_dir * y->v_m >= 0.0;
+    case FX_LOAD_VELOCITY: return -m->load_dir * y->v_l >= 0.0;
+    case FX_MOTOR_BREAK:
+        s = fx_spring(m, y->q_m, y->q_l);
+        return e->sign * (m->motor_torque - s.g * s.tau) > static_level(m, m->f_m, e->sign);
+    case FX_LOAD_BREAK:
+        s = fx_spring(m, y->q_m, y->q_l);
+        return e->sign * s.tau > static_level(m, m->f_l, e->sign);
+    case FX_HYSTERESIS:
+        s = fx_spring(m, y->q_m, y->q_l);
+        return -m->hyst_dir * (s.g * y->v_m - y->v_l) > 0.0;
+    }
+    return 0;
+}
+
+/* The events that can end the current substep. A body without friction never sticks: its velocity is no event. */
+static int fx_events(const HDModel *m, FxEvent *ev) {
+    int n = 0;
+    if (!m->motor_stuck && m->f_m > 0.0) ev[n].kind = FX_MOTOR_VELOCITY, ev[n++].sign = 0;
+    if (!m->load_stuck && m->f_l > 0.0) ev[n].kind = FX_LOAD_VELOCITY, ev[n++].sign = 0;
+    for (int32_t sign = -1; sign <= 1; sign += 2) {
+        if (m->motor_stuck) ev[n].kind = FX_MOTOR_BREAK, ev[n++].sign = sign;
+        if (m->load_stuck) ev[n].kind = FX_LOAD_BREAK, ev[n++].sign = sign;
+    }
+    if (m->hysteresis_torque > 0.0) ev[n].kind = FX_HYSTERESIS, ev[n++].sign = 0;
+    return n;
+}
+
+/* Smallest substep fraction in (0, 1] at which the event fires (it fires at 1; 0 is taken as not firing), to the
+ * last bit; every trial is one RK4 step of that length from the substep start, smooth in the fraction. */
+static double fx_bisect(const HDModel *m, const FxState *y0, double len, const FxEvent *e) {
+    double lo = 0.0, hi = 1.0;
+    for (int i = 0; i < 200; ++i) {
+        double mid = lo + 0.5 * (hi - lo);
+        if (mid <= lo || mid >= hi) break;
+        FxState y = fx_rk4(m, y0, mid * len);
+        if (fx_fires(m, e, &y)) hi = mid; else lo = mid;
+    }
+    return hi;
+}
+
+/* Substep length for a communication step h: 400 per period of the stiffest oscillation (tangent stiffness at the
+ * step start, largest gear factor r + 2A), at most a tenth of each viscous time constant. (Stribeck friction is
+ * stiff only while a body is slow: fx_local_substep limits the substeps then.) */
+static HDStatus fx_substep(const HDModel *m, double h, double *h_sub, char *err, size_t errlen) {
+    FxSpring s = fx_spring(m, m->q_m, m->q_l);
+    double K = m->K_s * (1.0 + 3.0 * m->hardening * s.d * s.d)
+             + (m->hysteresis_torque > 0.0 ? m->hysteresis_stiffness : 0.0);
+    double G = m->r + 2.0 * m->kinematic_error;
+    double h_max = 2.0 * HD_PI / sqrt(K * (G * G / m->J_m + 1.0 / m->J_l)) / HD_SUBSTEPS_PER_PERIOD;
+    if (m->b_m > 0.0) h_max = fmin(h_max, 0.1 * m->J_m / m->b_m);
+    if (m->b_l > 0.0) h_max = fmin(h_max, 0.1 * m->J_l / m->b_l);
+    double n = ceil(h / h_max);
+    if (!(n <= HD_MAX_SUBSTEPS_PER_STEP)) {
+        snprintf(err, errlen, "a step of %g s needs %g RK4 substeps of at most %g s (stiff effects); use shorter "
+                              "communication steps", h, n, h_max);
+        return HD_ERROR;
+    }
+    *h_sub = n >= 1.0 ? h / n : h;
+    return HD_OK;
+}
+
+/* Substep limit of one Stribeck transient: while a body is slow (or gets slow within h_sub) its friction changes on
+ * the time scale vs/|a|, and the falling friction-speed curve (slope up to k f / vs, k = (1 + |a|) s sqrt(2/e))
+ * acts as a negative damping of rate k f / (J vs). */
+static double stribeck_cap(double cap, double v, double a, double vs, double h_sub, double rate_max) {
+    if (fabs(v) - fabs(a) * h_sub < 6.0 * vs) {
+        if (a != 0.0) cap = fmin(cap, HD_TRANSIENT_RESOLUTION * vs / fabs(a));
+        cap = fmin(cap, 0.1 / rate_max);
+    }
+    return cap;
+}
+
+/* Shorter substeps while a fast transient is under way (rate * substep <= HD_TRANSIENT_RESOLUTION): a body in or
+ * entering its Stribeck range, and a hysteresis branch not yet saturated, which relaxes at sigma |dd| / H. */
+static double fx_local_substep(const HDModel *m, double h_sub) {
+    double cap = h_sub;
+    FxState y = fx_state(m);
+    FxForces f = fx_forces(m, &y);
+    if (m->stribeck_ratio > 0.0) {
+        double k = (1.0 + fabs(m->friction_asymmetry)) * m->stribeck_ratio * sqrt(2.0 / exp(1.0));
+        double vs_m = m->stribeck_velocity / m->r, vs_l = m->stribeck_velocity;
+        if (!m->motor_stuck && m->f_m > 0.0)
+            cap = stribeck_cap(cap, m->v_m, f.a_m, vs_m, h_sub, k * m->f_m / (m->J_m * vs_m));
+        if (!m->load_stuck && m->f_l > 0.0)
+            cap = stribeck_cap(cap, m->v_l, f.a_l, vs_l, h_sub, k * m->f_l / (m->J_l * vs_l));
+    }
+    double H = m->hysteresis_torque;
+    if (H > 0.0 && fabs(m->hyst_dir * H - f.s.z) > 1e-13 * H) {
+        double v_m = m->motor_stuck ? 0.0 : m->v_m, v_l = m->load_stuck ? 0.0 : m->v_l;
+        double dd = fabs(f.s.g * v_m - v_l) + fabs(f.s.g * f.a_m - f.a_l) * h_sub;
+        double rate = m->hysteresis_stiffness * dd / H;
+        if (rate * cap > HD_TRANSIENT_RESOLUTION) cap = HD_TRANSIENT_RESOLUTION / rate;
+    }
+    return fmax(cap, 1e-4 * h_sub); /* bounded work per step */
+}
+
+static void fx_commit(HDModel *m, const FxState *y) {
+    m->q_m = y->q_m;
+    m->q_l = y->q_l;
+    m->v_m = y->v_m;
+    m->v_l = y->v_l;
+    m->input_work = y->w_in;
+    m->friction_work = y->w_fr;
+    m->hysteresis_state = hysteresis_z(m, fx_spring(m, y->q_m, y->q_l).d);
+}
+
+/* Advances the working copy w by h with the general propagator; the caller commits it on success. */
+static HDStatus fx_do_step(HDModel *w, double h, double t0, char *err, size_t errlen) {
+    double h_sub;
+    if (fx_substep(w, h, &h_sub, err, errlen) != HD_OK) return HD_ERROR;
+    double t = 0.0;
+    long events = 0;
+    while (t < h && !(w->motor_stuck && w->load_stuck)) {
+        double cap = fx_local_substep(w, h_sub);
+        int last = h - t <= cap * (1.0 + 1e-12);
+        double len = last ? h - t : cap;
+        FxState y0 = fx_state(w), y1 = fx_rk4(w, &y0, len);
+        FxEvent ev[7];
+        int n = fx_events(w, ev), which = -1;
+        double theta = 1.0;
+        for (int i = 0; i < n; ++i) {
+            if (!fx_fires(w, &ev[i], &y1)) continue;
+            double th = fx_bisect(w, &y0, len, &ev[i]);
+            if (which < 0 || th < theta) theta = th, which = i;
+        }
+        if (which < 0) {
+            fx_commit(w, &y1);
+            t = last ? h : t + len;
+        } else {
+            FxState y = fx_rk4(w, &y0, theta * len);
+            fx_commit(w, &y);
+            t += theta * len;
+            if (ev[which].kind == FX_MOTOR_VELOCITY) w->v_m = 0.0;
+            if (ev[which].kind == FX_LOAD_VELOCITY) w->v_l = 0.0;
+            fx_settle(w);
+            w->event_count++;
+            if (++events > HD_MAX_EVENTS_PER_STEP) {
+                snprintf(err, errlen, "more than %ld switching events in one step of %g s; use shorter communication steps",
+                         HD_MAX_EVENTS_PER_STEP, h);
+                return HD_ERROR;
+            }
+        }
+        if (!state_finite(w)) {
+            snprintf(err, errlen, "the state overflowed during a step of %g s at t = %g s; use smaller torques or "
+                                  "steps", h, t0);
+            return HD_ERROR;
+        }
+    }
+    return HD_OK;
 }
 
 HDStatus hd_do_step(HDModel *m, double h, char *err, size_t errlen) {
@@ -476,6 +839,14 @@ HDStatus hd_do_step(HDModel *m, double h, char *err, size_t errlen) {
         return HD_ERROR;
     }
     HDModel work = *m; /* advance a copy: on error the caller's state is untouched */
+    if (effects_on(&work)) {
+        fx_settle(&work); /* the torque may have changed since the last step */
+        if (fx_do_step(&work, h, m->time, err, errlen) != HD_OK) return HD_ERROR;
+        work.time = m->time + h;
+        update_outputs(&work);
+        *m = work;
+        return HD_OK;
+    }
     settle_modes(&work); /* the torque may have changed since the last step */
     double t = 0.0;
     long events = 0;

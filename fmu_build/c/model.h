@@ -9,6 +9,12 @@
  * form and every event (a slipping body's velocity reaching zero, a stuck body's net torque leaving its static
  * band) is located as the first root of a known function. See model.c.
  *
+ * Optional effects (parameters vr 100+, all off by default): viscous friction b_m, b_l; Stribeck and asymmetric
+ * friction; a hardening spring K_s (d + hardening d^3); a Dahl hysteresis element z in parallel with the spring;
+ * a kinematic error d = r q_m + A sin(2 q_m + phi) - q_l. With any of them on, the same Karnopp stick-slip is
+ * propagated by a fixed-substep RK4 with the friction / hysteresis modes held inside each substep and events
+ * located by bisection (model.c, "general propagator").
+ *
  * All the state of one instance lives in HDModel: no globals, instances are independent, and copying the struct
  * copies the complete simulation state (used for FMU state get/set/serialize).
  */
@@ -27,6 +33,9 @@ typedef struct {
     double J_m, f_m, K_s, J_l, f_l, r, arm_length;
     int32_t encoder_counts_per_rev;
     double q_m_start, q_l_start, v_m_start, v_l_start;
+    /* Optional effects (0 = off, except the shape parameters stribeck_velocity, hysteresis_stiffness, phase). */
+    double b_m, b_l, stribeck_ratio, stribeck_velocity, friction_asymmetry, hardening;
+    double hysteresis_torque, hysteresis_stiffness, kinematic_error, kinematic_error_phase;
 
     /* Input: motor torque [N m], held constant over a communication step. */
     double motor_torque;
@@ -36,11 +45,14 @@ typedef struct {
     double q_m, q_l, v_m, v_l;
     int32_t motor_stuck, load_stuck;   /* 1 while the body sticks (its velocity is then exactly 0) */
     int32_t motor_dir, load_dir;       /* +1 / -1: slip direction while slipping */
-    double input_work, friction_work;  /* [J], accumulated exactly per segment */
+    double input_work, friction_work;  /* [J], accumulated exactly per segment (RK4 quadrature with effects) */
+    double hysteresis_state;           /* z [N m] of the Dahl element (also an output) */
+    int32_t hyst_dir;                  /* +1 / -1: direction of twisting on the current hysteresis branch */
+    double hyst_d0, hyst_z0;           /* branch anchor: deflection and z where the branch started */
     int64_t event_count;               /* switching events handled since initialization */
 
     /* Outputs derived from the state (refreshed after every change). */
-    double spring_torque, arm_position;
+    double spring_torque, arm_position, deflection, motor_friction_torque, load_friction_torque;
     int32_t encoder_count;
 } HDModel;
 

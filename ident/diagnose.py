@@ -1,0 +1,520 @@
+"""The discrepancy workflow: fit the base model, find where it and the log disagree, name the missing effect, add
+it, refit, and repeat until nothing significant is left.
+
+For a two-inertia log (torque, motor encoder, load sensor):
+
+1. **Split**: the first 70 % of the log trains every model; the last 30 % (or a second log) is held back and only
+   ever predicted (the model simulates the whole log, so the held-back part is a true multi-second prediction).
+2. **Base model**: ``ident.identify`` (K*, J_l*, f_l*, initial deflection) on the training part.
+3. **Where they disagree**: the residuals of the model's simulation, localised by regime (load/motor stuck or
+   slipping, speed bands, direction, motor angle phase 2 q_m mod 2 pi, torque level) in a ranked table: a regime
+   whose share of the residual energy is well above its share of the samples is where the model is wrong.
+4. **Candidates**: every library effect not yet in the model (``ident.effects``) is added with the FMU parameters
+   of its own (the C model implements the same formulas as the CasADi terms) and the whole model is refitted by
+   output error (CasADi + IPOPT through the FMU, as in ``identify``). Each candidate gets two scores:
+   *signature*: the share of the current residual that one Gauss-Newton step in the effect's direction (beyond
+   what the current parameters can absorb) would remove; *held-back gain*: the held-back cost without / with it.
+   The winner is the largest held-back gain; it is accepted only if that gain is significant (the held-back cost
+   falls by more than 5 % and by more than a chi-square(0.999) allowance for the added parameters, and the
+   training BIC falls too). Its margin is the ratio of its held-back cost to the runner-up's.
+5. **Iterate** with the winner in the model until no candidate is accepted; then report what is left (regimes
+   whose residual energy stays above 2x their share while the fit is above the noise) as *unexplained*, without
+   naming an effect for it.
+
+For a rigid-model start with a load sensor, the base model is the rigid kinematics q_l = r q_m and the only
+candidate that can fix it is ``flexibility`` (the two-inertia identification); after it the two-inertia workflow
+continues. A motor-only rigid log (e.g. EMPS) goes to ``ident.diagnose_rigid`` (equation error).
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from .diagnosis import Diagnosis, DiagnosisStep, NamedEffect
+from .effects import EFFECTS, Effect
+from .identify import (Z95, IdentificationError, OutputError, _bounds, _casadi_fit, _covariances, identify,
+                       noise_std)
+from .io import DriveLog, LogError
+from .params import DriveParams
+from .plant import Plant
+
+HOLDBACK_FRACTION = 0.3
+MIN_GAIN = 1.05          # held-back cost must fall by > 5 % ...
+CHI2_LEVEL = 0.999       # ... and by more than chi2(k, 0.999) (noise-normalised) for k added parameters
+TWO_INERTIA_CANDIDATES = tuple(n for n, e in EFFECTS.items() if "two-inertia" in e.applies_to)
+
+
+# ------------------------------------------------------------------------------------------ the problem ---------
+
+class EffectProblem(OutputError):
+    """Output-error residuals of the two-inertia FMU with some library effects switched on.
+
+    Unknowns: ``[ln K*, ln J_l*, ln f_l*, d0/band]`` followed by each effect's scaled unknowns (``FitVar``):
+    ``value = scale * x`` (``scale * exp(x)`` for log-variables)."""
+
+    def __init__(self, log: DriveLog, base: DriveParams, effects: tuple[str, ...], stop: int | None = None,
+                 sigma_load: float | None = None, fixed: dict[str, float] | None = None):
+        super().__init__(log, base, stop, sigma_load)
+        self.effects = effects
+        self.fixed = dict(fixed or {})
+        self.layout: list[tuple[Any, float]] = []
+        for name in effects:
+            eff = EFFECTS[name]
+            self.layout += list(zip(eff.fit_vars, eff.scales(base)))
+
+    def values(self, theta: np.ndarray) -> dict[str, float]:
+        """FMU effect parameter values of ``theta``."""
+        out = dict(self.fixed)
+        for (var, scale), x in zip(self.layout, theta[4:]):
+            out[var.param] = float(scale * math.exp(x) if var.log else scale * x)
+        return out
+
+    def params(self, theta: np.ndarray) -> DriveParams:
+        return super().params(theta).with_values(**self.values(theta))
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = _bounds()
+        return (np.concatenate([lo, [v.lo for v, _ in self.layout]]),
+                np.concatenate([hi, [v.hi for v, _ in self.layout]]))
+
+    def residuals(self, theta: np.ndarray) -> np.ndarray:
+        # IPOPT may probe a hair outside a bound (bound_relax_factor); the FMU would refuse e.g. b_l = -1e-9
+        lo, hi = self.bounds()
+        return super().residuals(np.clip(np.asarray(theta, dtype=float), lo, hi))
+
+    def jacobian(self, theta: np.ndarray) -> np.ndarray:
+        """Central differences as in ``OutputError`` (3e-8 in the log-parameters, 1e-6 elsewhere); one-sided at a
+        bound, where the FMU would refuse the other side (e.g. a viscous coefficient of exactly 0)."""
+        theta = np.asarray(theta, dtype=float)
+        lo, hi = self.bounds()
+        cols = []
+        for i in range(theta.size):
+            h = 3e-8 if i < 3 else 1e-6
+            up, down = theta.copy(), theta.copy()
+            up[i] = min(theta[i] + h, hi[i])
+            down[i] = max(theta[i] - h, lo[i])
+            cols.append((self.residuals(up) - self.residuals(down)) / (up[i] - down[i]))
+        return np.column_stack(cols)
+
+
+@dataclass
+class _Model:
+    """A fitted model of the sequence."""
+
+    effects: tuple[str, ...]
+    theta: np.ndarray
+    params: DriveParams
+    train_cost: float          # sum of squared (noise-normalised) training residuals
+    held_cost: float           # same on the held-back part
+    n_train: int
+    metrics: dict[str, float]
+    cov: np.ndarray | None = None
+    sim: dict[str, np.ndarray] | None = None
+
+    @property
+    def k(self) -> int:
+        return self.theta.size
+
+    def bic(self) -> float:
+        return self.n_train * math.log(self.train_cost / self.n_train) + self.k * math.log(self.n_train)
+
+
+# ------------------------------------------------------------------------------------------ evaluation ----------
+
+def _simulate_full(log: DriveLog, problem: EffectProblem, theta: np.ndarray) -> dict[str, np.ndarray]:
+    """The model's simulation of the WHOLE log (training + held back) with the sensor offsets of the training
+    part, plus the states used to localise residuals."""
+    p = problem.params(theta)
+    d0 = float(theta[3]) * p.f_l / p.K_s
+    q_m0 = float(problem.y_m[0])
+    outputs = ("q_m", "q_l", "v_m", "v_l", "spring_torque")
+    with Plant(p) as plant:
+        plant.reset(p, q_m_start=q_m0, q_l_start=p.r * q_m0 - d0, v_m_start=0.0, v_l_start=0.0)
+        traj = plant.trajectory(log.motor_torque_Nm[:-1], log.dt, outputs)
+    s = problem.stop
+    y_m = log.motor_pos_rad + 0.5 * problem.count
+    sim = {k: traj[:, i] for i, k in enumerate(outputs)}
+    sim["q_l"] = sim["q_l"] + float(np.mean(log.load_pos_rad[:s] - sim["q_l"][:s]))
+    sim["q_m"] = sim["q_m"] + float(np.mean(y_m[:s] - sim["q_m"][:s]))
+    sim["res_l"] = log.load_pos_rad - sim["q_l"]
+    sim["res_m"] = y_m - sim["q_m"]
+    return sim
+
+
+def _metrics(log: DriveLog, sim: dict[str, np.ndarray], stop: int, sigma_l: float, sigma_m: float) -> dict[str, float]:
+    y_l, y_m = log.load_pos_rad, log.motor_pos_rad
+    rl, rm = sim["res_l"], sim["res_m"]
+    held = slice(stop, None)
+    return {
+        "nrmse_load": float(np.sqrt(np.mean(rl**2)) / np.std(y_l)),
+        "nrmse_motor": float(np.sqrt(np.mean(rm**2)) / np.std(y_m)),
+        "relative_error_pct": float(100 * np.linalg.norm(rl) / np.linalg.norm(y_l - y_l.mean())),
+        "heldback_nrmse_load": float(np.sqrt(np.mean(rl[held] ** 2)) / np.std(y_l[held])),
+        "heldback_relative_error_pct": float(100 * np.linalg.norm(rl[held])
+                                             / np.linalg.norm(y_l[held] - y_l[held].mean())),
+        "residual_rms_load_rad": float(np.sqrt(np.mean(rl**2))),
+        "train_cost": float(np.sum((rl[:stop] / sigma_l) ** 2) + np.sum((rm[:stop] / sigma_m) ** 2)),
+        "held_cost": float(np.sum((rl[held] / sigma_l) ** 2) + np.sum((rm[held] / sigma_m) ** 2)),
+    }
+
+
+def _model(log: DriveLog, problem: EffectProblem, theta: np.ndarray, sigma_l: float) -> _Model:
+    sim = _simulate_full(log, problem, theta)
+    m = _metrics(log, sim, problem.stop, sigma_l, problem.sigma_m)
+    return _Model(problem.effects, np.asarray(theta, dtype=float), problem.params(theta), m["train_cost"],
+                  m["held_cost"], 2 * problem.stop, m, sim=sim)
+
+
+# ------------------------------------------------------------------------------------------ localisation --------
+
+def residual_regimes(log: DriveLog, sim: dict[str, np.ndarray], sigma_l: float, f_m: float) -> pd.DataFrame:
+    """Ranked table of where the load residual lives: for each regime its share of the samples, its share of the
+    residual energy, their ratio (``excess``), the mean residual in noise units (``bias_sigma``) and the RMS."""
+    res = sim["res_l"]
+    e = res**2
+    total = float(e.sum()) or 1.0
+    v_l, v_m = sim["v_l"], sim["v_m"]
+    tau = np.abs(np.append(log.motor_torque_Nm[:-1], 0.0)) / f_m
+    slipping = v_l != 0.0
+    speeds = np.abs(v_l[slipping])
+    qs = np.quantile(speeds, [0.5, 0.9]) if speeds.size > 10 else [np.inf, np.inf]
+    phase = np.mod(2 * sim["q_m"], 2 * math.pi)
+    masks = {
+        "load stuck": ~slipping, "load slipping": slipping,
+        "motor stuck": v_m == 0.0, "motor slipping": v_m != 0.0,
+        "load slow (below median speed)": slipping & (np.abs(v_l) <= qs[0]),
+        "load fast (above 90th percentile speed)": slipping & (np.abs(v_l) > qs[1]),
+        "load moving +": v_l > 0, "load moving -": v_l < 0,
+        "torque off": tau == 0, "torque below breakaway (tau* < 1)": (tau > 0) & (tau < 1),
+        "torque 1-2 (slow moves)": (tau >= 1) & (tau < 2), "torque >= 2 (pulses)": tau >= 2,
+    }
+    for k in range(4):
+        masks[f"motor angle phase 2q_m in [{k * 90}, {(k + 1) * 90}) deg"] = (
+            (phase >= k * math.pi / 2) & (phase < (k + 1) * math.pi / 2))
+    rows = []
+    n = res.size
+    for name, m in masks.items():
+        cnt = int(m.sum())
+        if cnt < 20:
+            continue
+        share_e, share_n = float(e[m].sum()) / total, cnt / n
+        mean = float(res[m].mean())
+        rows.append({"regime": name, "share_samples_pct": 100 * share_n, "share_residual_pct": 100 * share_e,
+                     "excess": share_e / share_n, "bias_sigma": mean / sigma_l * math.sqrt(cnt) / math.sqrt(
+                         max(float(np.mean(res[m] ** 2)) / sigma_l**2, 1.0)),
+                     "rms_rad": float(np.sqrt(np.mean(res[m] ** 2))), "mean_rad": mean})
+    return pd.DataFrame(rows).sort_values("excess", ascending=False, ignore_index=True)
+
+
+# ------------------------------------------------------------------------------------------ candidates ----------
+
+def _signature(problem: EffectProblem, theta: np.ndarray, n_new: int) -> float:
+    """Share of the residual one Gauss-Newton step would remove with the new effect, beyond the current model:
+    1 - |r - J d|^2 / |r - J0 d0|^2 (J0: the current model's columns only)."""
+    r = problem.residuals(theta)
+    J = problem.jacobian(theta)
+    J0 = J[:, : J.shape[1] - n_new]
+    base_left = r - J0 @ np.linalg.lstsq(J0, r, rcond=None)[0]
+    full_left = r - J @ np.linalg.lstsq(J, r, rcond=None)[0]
+    return float(max(0.0, 1.0 - (full_left @ full_left) / max(base_left @ base_left, 1e-300)))
+
+
+def _refit(log: DriveLog, base: DriveParams, current: _Model, effects: tuple[str, ...], stop: int, sigma_l: float,
+           new: str | None, max_iter: int) -> tuple[_Model, EffectProblem, float]:
+    """Refit ``effects`` (the current model's plus ``new``) on the training part; returns the model, its (open)
+    problem and the signature of ``new``.
+
+    Like ``identify``, the fit grows its window (35 %, 60 %, 100 % of the training part): the current model may have
+    bent its parameters to mimic the missing effect, and over a long window such a start sits in a phase-slipped
+    valley; a short window's cost is smooth. Starting points and the signature come from the first window."""
+    windows = [max(min(stop, 2000), int(f * stop)) for f in (0.35, 0.6, 1.0)]
+    problem = EffectProblem(log, base, effects, windows[0], sigma_l)
+    lo, hi = problem.bounds()
+    heads = [current.theta]
+    if new is not None:
+        heads = [np.clip(np.concatenate([current.theta, x]), lo, hi) for x in EFFECTS[new].starts]
+    # the current model may have parked the initial deflection at the edge of its band to mimic the missing
+    # effect: scan it too (it is cheap on the first window and a wrong one is a local minimum)
+    starts = []
+    for th in heads:
+        for d0 in np.linspace(-1.0, 1.0, 9):
+            s = th.copy()
+            s[3] = d0
+            starts.append(s)
+    costs = [float(np.sum(problem.residuals(th) ** 2)) for th in starts]
+    theta = starts[int(np.argmin(costs))]
+    n_new = len(EFFECTS[new].fit_vars) if new else 0
+    signature = _signature(problem, theta, n_new) if new else 0.0
+    for i, w in enumerate(windows):
+        if i:
+            problem.close()
+            problem = EffectProblem(log, base, effects, w, sigma_l)
+        theta, _ = _casadi_fit(problem, theta, lo, hi, max_iter)
+    return _model(log, problem, theta, sigma_l), problem, signature
+
+
+def _try_candidate(args: tuple) -> dict[str, Any]:
+    """One candidate (a top-level function, so that it can run on a worker)."""
+    log, base, current, stop, sigma_l, name, max_iter = args
+    t0 = time.perf_counter()
+    try:
+        model, problem, sig = _refit(log, base, current, current.effects + (name,), stop, sigma_l, name, max_iter)
+        cov = _interval_cov(problem, model.theta, log)
+        problem.close()
+        model.sim = None  # keep the result small; the winner is re-simulated
+        return {"name": name, "model": model, "signature": sig, "cov": cov, "error": None,
+                "elapsed_s": time.perf_counter() - t0}
+    except Exception as exc:  # noqa: BLE001 - a candidate that cannot be fitted is reported, not fatal
+        return {"name": name, "model": None, "signature": 0.0, "cov": None, "error": f"{type(exc).__name__}: {exc}",
+                "elapsed_s": time.perf_counter() - t0}
+
+
+def _interval_cov(problem: EffectProblem, theta: np.ndarray, log: DriveLog) -> np.ndarray:
+    """The larger (per parameter) of the sandwich and noise-only covariances, as ``identify`` reports."""
+    noise, sand, _ = _covariances(problem, theta, max(10, int(log.meta.sample_rate_hz / 50)))
+    return np.where(np.diag(sand)[:, None] >= np.diag(noise)[:, None], sand, noise)
+
+
+def _accept(current: _Model, cand: _Model) -> tuple[bool, float]:
+    """Significant held-back gain (and a training BIC that falls)? Returns (accepted, gain)."""
+    gain = current.held_cost / max(cand.held_cost, 1e-300)
+    dk = cand.k - current.k
+    allowance = stats.chi2.ppf(CHI2_LEVEL, max(dk, 1))
+    significant = gain > MIN_GAIN and current.held_cost - cand.held_cost > allowance and cand.bic() < current.bic()
+    return bool(significant), float(gain)
+
+
+def _named(effect: Effect, cand: dict[str, Any], runner_up: dict[str, Any] | None, gain: float) -> NamedEffect:
+    model: _Model = cand["model"]
+    problem_values = {}
+    idx = 4
+    layout = []
+    for name in model.effects:
+        e = EFFECTS[name]
+        for var, scale in zip(e.fit_vars, e.scales(model.params)):
+            layout.append((name, var, scale, idx))
+            idx += 1
+    for name, var, scale, i in layout:
+        problem_values[var.param] = getattr(model.params, var.param)
+    mag = float(effect.magnitude(problem_values))
+    lo = hi = math.nan
+    for name, var, scale, i in layout:
+        if name == effect.name and var.param == effect.magnitude_param and cand["cov"] is not None:
+            x = model.theta[i]
+            sd = math.sqrt(max(cand["cov"][i, i], 0.0))
+            if var.log:
+                lo, hi = scale * math.exp(x - Z95 * sd), scale * math.exp(x + Z95 * sd)
+            else:
+                a, b = scale * (x - Z95 * sd), scale * (x + Z95 * sd)
+                if effect.name == "asymmetric_friction":  # magnitude |a|
+                    a, b = sorted((abs(a), abs(b))) if a * b > 0 else (0.0, max(abs(a), abs(b)))
+                lo, hi = a, b
+    margin = None
+    if runner_up is not None and runner_up["model"] is not None:
+        margin = float(runner_up["model"].held_cost / max(model.held_cost, 1e-300))
+    evidence = (f"{effect.signature}; signature {100 * cand['signature']:.1f} % of the residual, held-back cost "
+                f"falls {gain:.2f}x" + (f", {margin:.2f}x better than {runner_up['name']}" if margin else ""))
+    return NamedEffect(effect.name, mag, (lo, hi), effect.unit, evidence,
+                       runner_up["name"] if runner_up else None, margin,
+                       {k: float(v) for k, v in problem_values.items()})
+
+
+def _candidate_table(results: list[dict[str, Any]], current: _Model) -> pd.DataFrame:
+    rows = []
+    for r in results:
+        m = r["model"]
+        rows.append({"candidate": r["name"], "signature_pct": 100 * r["signature"],
+                     "heldback_gain": (current.held_cost / m.held_cost) if m else math.nan,
+                     "train_gain": (current.train_cost / m.train_cost) if m else math.nan,
+                     "delta_bic": (m.bic() - current.bic()) if m else math.nan,
+                     "heldback_nrmse_load": m.metrics["heldback_nrmse_load"] if m else math.nan,
+                     "elapsed_s": r["elapsed_s"], "error": r["error"]})
+    return pd.DataFrame(rows).sort_values("heldback_gain", ascending=False, ignore_index=True)
+
+
+# ------------------------------------------------------------------------------------------ the workflow --------
+
+def _split(log: DriveLog, holdout: DriveLog | None) -> tuple[DriveLog, int]:
+    """The log to simulate (training first) and the training length."""
+    if holdout is None:
+        return log, int(round((1 - HOLDBACK_FRACTION) * log.n))
+    if abs(holdout.dt - log.dt) > 1e-9 * log.dt:
+        raise LogError(f"{holdout.source}: the held-back log must have the training log's sample rate "
+                       f"({log.meta.sample_rate_hz} Hz), got {holdout.meta.sample_rate_hz} Hz")
+    # the held-back log continues the training log: its torque is applied after the training log's last sample
+    joined = DriveLog(np.concatenate([log.time_s, log.time_s[-1] + log.dt + holdout.time_s - holdout.time_s[0]]),
+                      np.concatenate([log.motor_torque_Nm, holdout.motor_torque_Nm]),
+                      np.concatenate([log.motor_pos_rad, holdout.motor_pos_rad - holdout.motor_pos_rad[0]
+                                      + log.motor_pos_rad[-1]]),
+                      np.concatenate([log.load_pos_rad, holdout.load_pos_rad - holdout.load_pos_rad[0]
+                                      + log.load_pos_rad[-1]]), log.meta, source=f"{log.source}+{holdout.source}")
+    return joined, log.n
+
+
+def _truncate(log: DriveLog, stop: int) -> DriveLog:
+    return replace(log, time_s=log.time_s[:stop], motor_torque_Nm=log.motor_torque_Nm[:stop],
+                   motor_pos_rad=log.motor_pos_rad[:stop], load_pos_rad=log.load_pos_rad[:stop])
+
+
+def _resolution_um(params: DriveParams, n_pulses: int) -> float | None:
+    from .resolution import ThresholdNotFound, impulse_resolution
+
+    try:
+        return float(impulse_resolution(params, n_pulses=n_pulses).resolution_m * 1e6)
+    except (ThresholdNotFound, RuntimeError):
+        return None
+
+
+def _step(added: str | None, model: _Model, score: float | None, table: pd.DataFrame, n_pulses: int,
+          extra: dict[str, Any]) -> DiagnosisStep:
+    m = model.metrics
+    values = {k: float(v) for k, v in model.params.to_dict().items()}
+    return DiagnosisStep(added, m["nrmse_load"], m["nrmse_motor"], m["relative_error_pct"], score, values, table,
+                         _resolution_um(model.params, n_pulses) if n_pulses else None,
+                         {"heldback_nrmse_load": m["heldback_nrmse_load"],
+                          "heldback_relative_error_pct": m["heldback_relative_error_pct"], "bic": model.bic(),
+                          "effects": list(model.effects), **extra})
+
+
+def _unexplained(table: pd.DataFrame, residual_over_noise: float) -> list[dict[str, Any]]:
+    """Regimes still holding structure when the final model is clearly above the noise."""
+    if residual_over_noise < 1.5:
+        return []
+    out = []
+    for row in table.itertuples():
+        if row.excess > 2.0 or abs(row.bias_sigma) > 10:
+            out.append({"regime": row.regime, "share_pct": round(row.share_residual_pct, 2),
+                        "detail": f"{row.share_residual_pct:.1f} % of the residual energy in {row.share_samples_pct:.1f}"
+                                  f" % of the samples (x{row.excess:.1f}), mean {row.mean_rad:.3g} rad; no library "
+                                  "effect removes it significantly"})
+    if not out:
+        out.append({"regime": "whole log", "share_pct": 100.0,
+                    "detail": f"residual {residual_over_noise:.1f}x the load sensor noise, spread evenly over the "
+                              "regimes; no library effect removes it significantly"})
+    return out
+
+
+def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | None = None,
+             out_dir: str | Path | None = None, candidates: tuple[str, ...] | None = None, max_effects: int = 3,
+             max_iter: int = 15, resolution_pulses: int = 200, workers: int = 0, export_fmu: bool = True,
+             progress: bool = False) -> Diagnosis:
+    """Run the discrepancy workflow on ``log`` (see the module docstring); ``out_dir``: write the report, plots and
+    the fitted FMU there. ``workers``: candidates refitted in parallel on Dask (0: in this process)."""
+    t0 = time.perf_counter()
+    if model not in ("two-inertia", "rigid"):
+        raise ValueError(f"model = {model!r}: use 'two-inertia' or 'rigid'")
+    if log.load_pos_rad is None or log.meta.J_m_kgm2 is None or log.meta.f_m_Nm is None:
+        if model == "two-inertia":
+            raise LogError(f"{log.source}: the two-inertia diagnosis needs load_pos_rad and J_m_kgm2, f_m_Nm, "
+                           "encoder_counts_per_rev in the sidecar; use model='rigid' for a motor-only log")
+        from .diagnose_rigid import diagnose_rigid
+
+        return diagnose_rigid(log, holdout=holdout, out_dir=out_dir, progress=progress)
+    full, stop = _split(log, holdout)
+    names = tuple(candidates) if candidates is not None else TWO_INERTIA_CANDIDATES
+    unknown = [c for c in names if c not in EFFECTS]
+    if unknown:
+        raise ValueError(f"unknown effect(s) {unknown}; the library has {', '.join(EFFECTS)}")
+    say = (lambda msg: print(msg, file=sys.stderr)) if progress else (lambda msg: None)
+    steps: list[DiagnosisStep] = []
+    named: list[NamedEffect] = []
+    notes: list[str] = []
+    sigma_quiet = max(noise_std(full.load_pos_rad[:stop]), 1e-15)
+
+    if model == "rigid":
+        rigid = _rigid_start(full, stop, sigma_quiet)
+        steps.append(rigid.pop("step"))
+        say(f"rigid model: load NRMSE {steps[-1].nrmse_load:.4g}")
+    say("fitting the base two-inertia model ...")
+    fit = identify(_truncate(full, stop), progress=progress)
+    base = fit.params
+    base = DriveParams(J_m=base.J_m, f_m=base.f_m, r=base.r, arm_length=base.arm_length,
+                       encoder_counts_per_rev=base.encoder_counts_per_rev)
+    sigma_l = fit.sigma_load_rad
+    problem = EffectProblem(full, base, (), stop, sigma_l)
+    current = _model(full, problem, fit.theta, sigma_l)
+    problem.close()
+    models = [current]
+    if model == "rigid":
+        held = current.sim["res_l"][stop:]
+        gain = rigid["held_cost"] / float(np.sum((held / sigma_quiet) ** 2))
+        steps.append(_step("flexibility", current, gain, pd.DataFrame([{"candidate": "flexibility",
+                                                                          "heldback_gain": gain}]),
+                           resolution_pulses, {}))
+        named.append(NamedEffect("flexibility", base.with_values(K_star=fit.estimates["K_star"].value).K_s,
+                                 tuple(x * base.f_m for x in fit.estimates["K_star"].ci95), "N.m/rad",
+                                 EFFECTS["flexibility"].signature + f"; held-back load cost falls {gain:.3g}x",
+                                 None, None, {"K_s": fit.params.K_s}))
+    else:
+        steps.append(_step(None, current, None, pd.DataFrame(), resolution_pulses, {}))
+    say(f"base: load NRMSE {current.metrics['nrmse_load']:.4g}, held-back {current.metrics['heldback_nrmse_load']:.4g}")
+
+    remaining = [c for c in names if c in TWO_INERTIA_CANDIDATES]
+    while remaining and len(current.effects) < max_effects:
+        from .distributed import run_batch
+
+        tasks = [(full, base, current, stop, sigma_l, c, max_iter) for c in remaining]
+        results = run_batch(_try_candidate, tasks, workers=workers, progress=progress,
+                            desc=f"candidates (step {len(steps)})")
+        table = _candidate_table(results, current)
+        ok = [r for r in results if r["model"] is not None]
+        ok.sort(key=lambda r: r["model"].held_cost)
+        for r in results:
+            if r["error"]:
+                notes.append(f"candidate {r['name']} could not be fitted: {r['error']}")
+        if not ok:
+            break
+        best = ok[0]
+        accepted, gain = _accept(current, best["model"])
+        say(f"best candidate {best['name']}: held-back gain {gain:.3f} ({'accepted' if accepted else 'rejected'})")
+        if not accepted:
+            steps[-1].candidates = table
+            break
+        runner = ok[1] if len(ok) > 1 else None
+        named.append(_named(EFFECTS[best["name"]], best, runner, gain))
+        winner = best["model"]
+        problem = EffectProblem(full, base, winner.effects, stop, sigma_l)
+        current = _model(full, problem, winner.theta, sigma_l)
+        problem.close()
+        models.append(current)
+        steps[-1].candidates = table
+        steps.append(_step(best["name"], current, gain, pd.DataFrame(), resolution_pulses,
+                           {"signature_pct": 100 * best["signature"]}))
+        remaining.remove(best["name"])
+    table = residual_regimes(full, current.sim, sigma_l, base.f_m)
+    over_noise = current.metrics["residual_rms_load_rad"] / sigma_quiet
+    diag = Diagnosis(model, steps, named, _unexplained(table, over_noise), table,
+                     elapsed_s=time.perf_counter() - t0, notes=notes)
+    diag.notes.append(f"final load residual {over_noise:.2f}x the load sensor noise ({sigma_quiet:.3g} rad)")
+    if out_dir is not None:
+        from .diagnose_report import write_diagnosis
+
+        write_diagnosis(diag, full, stop, models, sigma_quiet, out_dir, export_fmu=export_fmu)
+    diag.elapsed_s = time.perf_counter() - t0
+    return diag
+
+
+def _rigid_start(log: DriveLog, stop: int, sigma_l: float) -> dict[str, Any]:
+    """The rigid kinematics q_l = r q_m as the base model of a log with a load sensor: its load prediction (the
+    encoder reading's mid-count, the load sensor's zero fitted on the training part)."""
+    r = log.meta.r
+    count = 2 * math.pi / log.meta.encoder_counts_per_rev
+    q_l = r * (log.motor_pos_rad + 0.5 * count)
+    q_l = q_l + float(np.mean(log.load_pos_rad[:stop] - q_l[:stop]))
+    res = log.load_pos_rad - q_l
+    y = log.load_pos_rad
+    held = slice(stop, None)
+    nrmse = float(np.sqrt(np.mean(res**2)) / np.std(y))
+    step = DiagnosisStep(None, nrmse, 0.0, float(100 * np.linalg.norm(res) / np.linalg.norm(y - y.mean())), None,
+                         {"r": r}, pd.DataFrame(),
+                         extra={"heldback_nrmse_load": float(np.sqrt(np.mean(res[held] ** 2)) / np.std(y[held])),
+                                "model": "rigid kinematics q_l = r q_m (motor encoder exact by construction)"})
+    return {"step": step, "held_cost": float(np.sum((res[held] / sigma_l) ** 2))}

@@ -1,0 +1,211 @@
+"""The effect library of the discrepancy workflow: one entry per physical effect, written once in CasADi.
+
+Every effect of ``physics.md`` section 5 is an optional, default-off term. Its parameters are FMU parameters of the
+variable table (``fmu_build/variables.py``, value references 100+), and the C model (``fmu_build/c/model.c``)
+implements exactly the formulas below; ``tests/test_effects.py`` holds the two equal on trajectories of the FMU.
+
+Equations (SI, load-side angles; ``dir`` is a slipping body's direction, +1 / -1)::
+
+    d     = r q_m + A sin(2 q_m + phi) - q_l                 deflection incl. kinematic error (A, phi)
+    g     = r + 2 A cos(2 q_m + phi)                          d(d)/d(q_m): the transmission seen by the motor
+    tau_s = K_s (d + hardening d^3) + z                       spring torque (hardening = K3/K_s)
+    z'    = sigma dd (1 - sgn(dd) z / H),  dd = g v_m - v_l    Dahl hysteresis in parallel (H = 0: off)
+    J_m v_m' = T - g tau_s - F_m          J_l v_l' = tau_s - F_l
+    F     = dir f (1 + a dir)(1 + s exp(-(v/v_s)^2)) + b v   a slipping body's friction
+    static band of a stuck body: -f (1 - a)(1 + s) <= N <= f (1 + a)(1 + s)
+
+``a`` = ``friction_asymmetry``, ``s`` = ``stribeck_ratio``, ``v_s`` = ``stribeck_velocity`` on the load side and
+``stribeck_velocity / r`` on the motor side, ``b`` = ``b_m`` / ``b_l``.
+
+The rigid model (one body seen through the motor encoder, e.g. a linear axis in N and m) uses the same friction
+law: ``T = M q'' + F(q') + offset``.
+
+Each :class:`Effect` knows its FMU parameters, how the fit sees them (scaled, bounded unknowns), its *magnitude*
+(the number a report quotes, with its unit) and the residual signature it leaves (used to explain the choice).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import casadi as ca
+
+# ------------------------------------------------------------------------------------------ CasADi terms --------
+
+
+def deflection(q_m: Any, q_l: Any, r: Any, kin_amp: Any = 0.0, kin_phase: Any = 0.0) -> Any:
+    """d = r q_m + A sin(2 q_m + phi) - q_l [rad, load side]."""
+    return r * q_m + kin_amp * ca.sin(2 * q_m + kin_phase) - q_l
+
+
+def transmission(q_m: Any, r: Any, kin_amp: Any = 0.0, kin_phase: Any = 0.0) -> Any:
+    """g = d(d)/d(q_m) = r + 2 A cos(2 q_m + phi): the factor by which the spring torque acts on the motor."""
+    return r + 2 * kin_amp * ca.cos(2 * q_m + kin_phase)
+
+
+def spring_torque(d: Any, K_s: Any, hardening: Any = 0.0, z: Any = 0.0) -> Any:
+    """tau_s = K_s (d + hardening d^3) + z [N m]."""
+    return K_s * (d + hardening * d**3) + z
+
+
+def hysteresis_rate(z: Any, dd: Any, sigma: Any, H: Any) -> Any:
+    """Dahl element: z' = sigma dd (1 - sgn(dd) z / H) [N m/s]; dd is the deflection rate."""
+    return sigma * (dd - ca.fabs(dd) * z / H)
+
+
+def friction_level(direction: Any, f: Any, asymmetry: Any = 0.0) -> Any:
+    """Coulomb level for motion in ``direction`` (+1/-1): f (1 + a dir) [N m]."""
+    return f * (1 + asymmetry * direction)
+
+
+def sliding_friction(v: Any, f: Any, *, b: Any = 0.0, asymmetry: Any = 0.0, stribeck_ratio: Any = 0.0,
+                     stribeck_velocity: Any = 1.0, direction: Any | None = None) -> Any:
+    """Friction torque on a slipping body (the term subtracted in J v' = ... - F):
+    dir f (1 + a dir)(1 + s exp(-(v/v_s)^2)) + b v; ``direction`` defaults to sgn(v)."""
+    dirn = ca.sign(v) if direction is None else direction
+    return dirn * friction_level(dirn, f, asymmetry) * (1 + stribeck_ratio * ca.exp(-(v / stribeck_velocity) ** 2)) \
+        + b * v
+
+
+def static_band(f: Any, asymmetry: Any = 0.0, stribeck_ratio: Any = 0.0) -> tuple[Any, Any]:
+    """(lower, upper) net torque a stuck body withstands: -f(1-a)(1+s), f(1+a)(1+s)."""
+    return -f * (1 - asymmetry) * (1 + stribeck_ratio), f * (1 + asymmetry) * (1 + stribeck_ratio)
+
+
+def slip_dynamics(params: dict[str, Any]) -> ca.Function:
+    """CasADi function of the two-inertia model with both bodies slipping:
+    x = [q_m, q_l, v_m, v_l, z], u = T  ->  x' and the outputs [d, tau_s, F_m, F_l]. ``params`` maps FMU parameter
+    names to numbers or CasADi symbols (missing effect parameters are off)."""
+    p = {**EFFECT_DEFAULTS, **params}
+    x, u = ca.SX.sym("x", 5), ca.SX.sym("T")
+    q_m, q_l, v_m, v_l, z = (x[i] for i in range(5))
+    d = deflection(q_m, q_l, p["r"], p["kinematic_error"], p["kinematic_error_phase"])
+    g = transmission(q_m, p["r"], p["kinematic_error"], p["kinematic_error_phase"])
+    tau = spring_torque(d, p["K_s"], p["hardening"], z)
+    common = dict(asymmetry=p["friction_asymmetry"], stribeck_ratio=p["stribeck_ratio"])
+    F_m = sliding_friction(v_m, p["f_m"], b=p["b_m"], stribeck_velocity=p["stribeck_velocity"] / p["r"], **common)
+    F_l = sliding_friction(v_l, p["f_l"], b=p["b_l"], stribeck_velocity=p["stribeck_velocity"], **common)
+    H = p["hysteresis_torque"]
+    dz = hysteresis_rate(z, g * v_m - v_l, p["hysteresis_stiffness"], H) if _nonzero(H) else 0 * z
+    xdot = ca.vertcat(v_m, v_l, (u - g * tau - F_m) / p["J_m"], (tau - F_l) / p["J_l"], dz)
+    return ca.Function("slip_dynamics", [x, u], [xdot, ca.vertcat(d, tau, F_m, F_l)], ["x", "T"], ["xdot", "y"])
+
+
+def rigid_force(a: Any, v: Any, theta: dict[str, Any]) -> Any:
+    """The rigid model's force/torque: M a + F(v) + offset, F with viscous ``Fv``, Coulomb ``Fc``, asymmetry,
+    Stribeck (ratio, velocity) from ``theta`` (missing terms are off)."""
+    return theta["M"] * a + sliding_friction(v, theta["Fc"], b=theta.get("Fv", 0.0),
+                                             asymmetry=theta.get("asymmetry", 0.0),
+                                             stribeck_ratio=theta.get("stribeck_ratio", 0.0),
+                                             stribeck_velocity=theta.get("stribeck_velocity", 1.0)) \
+        + theta.get("offset", 0.0)
+
+
+def _nonzero(x: Any) -> bool:
+    return not (isinstance(x, (int, float)) and x == 0)
+
+
+# ------------------------------------------------------------------------------------------ the registry -------
+
+EFFECT_DEFAULTS: dict[str, float] = {
+    "b_m": 0.0, "b_l": 0.0, "stribeck_ratio": 0.0, "stribeck_velocity": 1e-3, "friction_asymmetry": 0.0,
+    "hardening": 0.0, "hysteresis_torque": 0.0, "hysteresis_stiffness": 1.0e4, "kinematic_error": 0.0,
+    "kinematic_error_phase": 0.0,
+}
+
+
+@dataclass(frozen=True)
+class FitVar:
+    """One unknown of a refit: ``value = scale * x`` (``log``: ``value = scale * exp(x)``), x within [lo, hi]."""
+
+    param: str          # FMU parameter it sets
+    lo: float
+    hi: float
+    log: bool = False
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One effect of the library.
+
+    ``scales(base)`` gives the typical size of each unknown for a drive (so that x ~ 1 is a realistic magnitude);
+    ``magnitude(values)`` turns fitted FMU parameter values into the number the report quotes (``unit``).
+    ``signature`` says in words what the effect leaves in the residuals; ``applies_to`` the base models it extends.
+    """
+
+    name: str
+    fit_vars: tuple[FitVar, ...]
+    unit: str
+    signature: str
+    applies_to: tuple[str, ...]
+    scales: Callable[[Any], tuple[float, ...]]
+    magnitude: Callable[[dict[str, float]], float]
+    magnitude_param: str | None  # FMU parameter whose interval is the magnitude's (None: derived)
+    starts: tuple[tuple[float, ...], ...]  # starting points (in x) tried by a refit
+
+
+def _band_speed(p: Any) -> float:
+    """A load speed typical of free ringing: w * f_l / K_s [rad/s]."""
+    w = math.sqrt(p.K_s * (p.r**2 / p.J_m + 1 / p.J_l))
+    return w * max(p.f_l, 1e-3 * p.f_m) / p.K_s
+
+
+def _band_deflection(p: Any) -> float:
+    """The spring deflection carried by the motor's breakaway torque: f_m / (r K_s) [rad]."""
+    return p.f_m / (p.r * p.K_s)
+
+
+EFFECTS: dict[str, Effect] = {e.name: e for e in (
+    Effect("viscous_motor", (FitVar("b_m", 0.0, 1e3),), "N.m.s/rad",
+           "residual grows with motor speed: long slides end too far (or too short) by an amount that scales "
+           "with the slide's speed", ("two-inertia", "rigid"),
+           lambda p: (0.05 * p.f_m / math.sqrt(p.f_m / p.J_m),),
+           lambda v: v["b_m"], "b_m", ((0.1,), (1.0,), (10.0,))),
+    Effect("viscous_load", (FitVar("b_l", 0.0, 1e3),), "N.m.s/rad",
+           "load ringing decays exponentially (constant ratio of successive peaks) instead of linearly (Coulomb)",
+           ("two-inertia",), lambda p: (0.1 * math.sqrt(p.K_s * p.J_l),),
+           lambda v: v["b_l"], "b_l", ((0.1,), (1.0,), (10.0,))),
+    Effect("stribeck", (FitVar("stribeck_ratio", 0.0, 10.0), FitVar("stribeck_velocity", -2.5, 3.0, log=True)),
+           "1", "breakaway needs more torque than sliding: overshoot after breakaway, a dip of friction at low speed",
+           ("two-inertia", "rigid"), lambda p: (1.0, _band_speed(p)),
+           lambda v: v["stribeck_ratio"], "stribeck_ratio",
+           ((0.3, 0.0), (0.3, 2.0), (0.3, -2.0), (1.0, 0.0))),
+    Effect("asymmetric_friction", (FitVar("friction_asymmetry", -0.99, 0.99),), "1",
+           "the residual's sign follows the direction of motion: positive and negative moves end at different "
+           "distances", ("two-inertia", "rigid"), lambda p: (1.0,),
+           lambda v: abs(v["friction_asymmetry"]), "friction_asymmetry", ((0.1,), (-0.1,))),
+    Effect("hardening", (FitVar("hardening", 0.0, 1e3),), "1/rad2",
+           "ringing frequency rises with amplitude: phase error grows in large swings and vanishes in small ones",
+           ("two-inertia",), lambda p: (1.0 / _band_deflection(p) ** 2,),
+           lambda v: v["hardening"], "hardening", ((0.01,), (0.1,), (1.0,))),
+    Effect("hysteresis", (FitVar("hysteresis_torque", 0.05, 1e3), FitVar("hysteresis_stiffness", -2.3, 2.3, log=True)),
+           "N.m", "a loop in spring torque vs twist: direction-dependent offset and amplitude-dependent damping of "
+           "the ringing", ("two-inertia",), lambda p: (max(p.f_l, 1e-3 * p.f_m), p.K_s),
+           lambda v: v["hysteresis_torque"], "hysteresis_torque",
+           ((0.3, 0.0), (1.0, 0.0), (1.0, -1.5), (3.0, -1.5))),
+    Effect("kinematic_error", (FitVar("kinematic_error", 0.0, 1e4), FitVar("kinematic_error_phase", -10.0, 10.0)),
+           "rad", "load angle error periodic in motor angle, twice per wave-generator turn",
+           ("two-inertia",), lambda p: (p.r * p.count_rad, 1.0),
+           lambda v: v["kinematic_error"], "kinematic_error",
+           tuple((1.0, ph) for ph in (0.0, 1.5708, 3.1416, 4.7124))),
+    Effect("flexibility", (), "N.m/rad", "a resonance the rigid model cannot produce: the load rings on its own "
+           "after every move while the motor stands still", ("rigid",), lambda p: (), lambda v: v.get("K_s", math.nan),
+           "K_s", ()),
+)}
+
+ORDER = tuple(EFFECTS)
+
+
+def effect_params(values: dict[str, float]) -> dict[str, float]:
+    """The FMU effect parameters among ``values`` (others dropped)."""
+    return {k: float(v) for k, v in values.items() if k in EFFECT_DEFAULTS}
+
+
+def active_effects(values: dict[str, float]) -> list[str]:
+    """Names of the effects switched on by a set of FMU parameter values."""
+    on = []
+    for name, e in EFFECTS.items():
+        if e.fit_vars and values.get(e.fit_vars[0].param, 0.0) != 0.0:
+            on.append(name)
+    return on

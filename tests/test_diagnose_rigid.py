@@ -1,0 +1,149 @@
+"""The rigid-model discrepancy workflow (ident/diagnose_rigid.py): on the EMPS benchmark it names viscous and then
+asymmetric friction with the published relative errors (4.0834 %, 3.1117 %), using DATA_EMPS_PULSES as held-back
+data; on a synthetic inverse-dynamics log with a hidden viscous term it finds it; bad input is refused."""
+from __future__ import annotations
+
+import json
+import math
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from ident.diagnose_rigid import CANDIDATES, PAPER_ASYM, diagnose_rigid
+from ident.effects import rigid_force
+from ident.emps import PAPER, find_emps_data, identify_rigid, load_emps, validate_rigid
+from ident.io import DriveLog, LogError, LogMeta
+
+DATA = find_emps_data()
+HAVE_PULSES = DATA is not None and (DATA / "DATA_EMPS_PULSES.mat").is_file()
+needs_data = pytest.mark.skipif(
+    not HAVE_PULSES, reason="EMPS data absent: neither $HDRIVE_SHARED/data/emps nor <repo>/../shared/data/emps holds "
+                            "DATA_EMPS.mat and DATA_EMPS_PULSES.mat")
+
+
+@pytest.fixture(scope="module")
+def emps(tmp_path_factory):
+    out = tmp_path_factory.mktemp("rigid_diag")
+    log = load_emps(DATA / "DATA_EMPS.mat")
+    log_p = load_emps(DATA / "DATA_EMPS_PULSES.mat")
+    return log, log_p, diagnose_rigid(log, holdout=log_p, out_dir=out), out
+
+
+def test_candidates_are_the_rigid_library_effects():
+    assert set(CANDIDATES) == {"viscous_motor", "asymmetric_friction", "stribeck"}
+
+
+@needs_data
+def test_emps_names_viscous_then_asymmetric(emps):
+    log, log_p, d, _ = emps
+    assert [s.added for s in d.steps] == [None, "viscous_motor", "asymmetric_friction"]
+    # the viscous step is the published IDIM-LS model (M, Fv, Fc, offset): 4.0834 %, and its held-back error is the
+    # PDF's cross-test figure on DATA_EMPS_PULSES (5.9824 %)
+    fit = identify_rigid(log)
+    assert d.steps[1].relative_error_pct == pytest.approx(fit.relative_error_pct, abs=1e-6)
+    assert d.steps[1].relative_error_pct == pytest.approx(PAPER["relative_error_pct"], abs=1e-3)
+    assert d.steps[1].extra["heldback_relative_error_pct"] == pytest.approx(validate_rigid(fit, log_p).relative_error_pct,
+                                                                            abs=1e-6)
+    assert d.steps[1].extra["heldback_relative_error_pct"] == pytest.approx(PAPER["ctv"]["relative_error_pct"], abs=1e-3)
+    for k in ("M", "Fv", "Fc", "offset"):
+        assert d.steps[1].params[k] == pytest.approx(PAPER[k], rel=1e-4)
+    # the asymmetric step is the PDF's section 4.2 model (M, Fv+, Fc+, Fv-, Fc-): 3.1117 %
+    assert d.steps[2].relative_error_pct == pytest.approx(PAPER_ASYM["relative_error_pct"], abs=1e-3)
+    for k in ("M", "Fv_pos", "Fc_pos", "Fv_neg", "Fc_neg"):
+        assert d.steps[2].params[k] == pytest.approx(PAPER_ASYM[k], rel=1e-4)
+    # the gap shrinks on training and held-back data; scores > 1; stribeck was tried last and refused
+    tr = [s.relative_error_pct for s in d.steps]
+    hb = [s.extra["heldback_relative_error_pct"] for s in d.steps]
+    assert tr[0] > 10 and tr == sorted(tr, reverse=True) and hb == sorted(hb, reverse=True)
+    assert d.steps[1].score > 5 and 1.1 < d.steps[2].score < 1.5
+    last = d.steps[-1].candidates
+    assert list(last["effect"]) == ["stribeck"] and not last["accepted"].any()
+
+
+@needs_data
+def test_emps_effects_have_intervals_and_margins(emps):
+    _, _, d, _ = emps
+    eff = {e.name: e for e in d.effects}
+    assert list(eff) == ["viscous_motor", "asymmetric_friction"]
+    v = eff["viscous_motor"]
+    assert v.unit == "N s/m" and v.ci95[0] < v.magnitude < v.ci95[1]
+    assert v.magnitude == pytest.approx((PAPER_ASYM["Fv_pos"] + PAPER_ASYM["Fv_neg"]) / 2, rel=1e-4)
+    a = eff["asymmetric_friction"]
+    assert 0 < a.ci95[0] < a.magnitude < a.ci95[1] < 1
+    for e in d.effects:
+        assert e.runner_up in CANDIDATES and e.margin > 1
+    assert any("viscous asymmetry" in n or "viscous_asymmetry" in n for n in d.notes)
+
+
+@needs_data
+def test_emps_unexplained_regimes_and_flexibility_signature(emps):
+    _, _, d, _ = emps
+    regimes = [u["regime"] for u in d.unexplained]
+    assert any("pulse" in r for r in regimes)               # the PULSES gap sits at the pulse edges
+    assert any("spectrum" in r for r in regimes)            # a bump no rigid model produces ...
+    assert "flexibility" not in {e.name for e in d.effects}  # ... never named as an effect
+    for u in d.unexplained:
+        assert set(u) == {"regime", "share_pct", "detail"} and u["detail"]
+
+
+@needs_data
+def test_emps_json_and_report(emps):
+    _, _, d, out = emps
+    js = json.loads(json.dumps(d.to_dict(), default=float))
+    assert {"steps", "effects", "unexplained"} <= set(js)
+    for s in js["steps"]:
+        assert {"added", "nrmse_load", "nrmse_motor", "relative_error_pct", "score"} <= set(s)
+    for e in js["effects"]:
+        assert {"name", "magnitude", "ci95"} <= set(e)
+    md = (out / "rigid_diagnosis.md").read_text()
+    assert "4.0834" in md and "3.1117" in md and "5.9824" in md
+    for key in ("report", "residuals_png", "heldback_png"):
+        assert key in d.files
+    assert not d.residual_table.empty
+
+
+def _inverse_dynamics_log(b: float, n: int = 16000, fs: float = 1000.0, seed: int = 0) -> DriveLog:
+    """A rotary log whose torque is the library's rigid force on a smooth sliding trajectory (no plant needed)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / fs
+    q = 2.0 * np.sin(2 * np.pi * 0.5 * t) + 0.5 * np.sin(2 * np.pi * 1.3 * t + 0.4)
+    v = np.gradient(q, 1 / fs)
+    a = np.gradient(v, 1 / fs)
+    A, V = ca.SX.sym("a"), ca.SX.sym("v")
+    f = ca.Function("f", [A, V], [rigid_force(A, V, {"M": 2e-3, "Fc": 0.05, "Fv": b, "offset": 0.01})]).map(n)
+    tau = np.asarray(f(a[None, :], v[None, :])).ravel() + 0.002 * rng.standard_normal(n)
+    meta = LogMeta(r=1.0, J_m_kgm2=None, f_m_Nm=None, arm_length_m=1.0, encoder_counts_per_rev=None,
+                   sample_rate_hz=fs)
+    return DriveLog(t, tau, q, None, meta, source="<synthetic>", kind="rotary")
+
+
+def test_synthetic_hidden_viscous_is_named():
+    d = diagnose_rigid(_inverse_dynamics_log(b=4e-3))
+    assert [s.added for s in d.steps][:2] == [None, "viscous_motor"]
+    v = d.effects[0]
+    assert v.unit == "N.m.s/rad" and v.ci95[0] < 4e-3 < v.ci95[1]
+    assert d.steps[1].relative_error_pct < 0.5 * d.steps[0].relative_error_pct
+
+
+def test_synthetic_without_hidden_effect_adds_nothing():
+    d = diagnose_rigid(_inverse_dynamics_log(b=0.0, seed=1))
+    assert [s.added for s in d.steps] == [None]
+    assert d.effects == []
+    assert d.unexplained == []   # no false structure on a log the model fits exactly
+
+
+def test_log_that_does_not_move_is_refused():
+    log = _inverse_dynamics_log(b=0.0)
+    still = DriveLog(log.time_s, log.motor_torque_Nm, np.zeros(log.n), None, log.meta, source="<still>")
+    with pytest.raises((RuntimeError, LogError), match="move"):
+        diagnose_rigid(still)
+
+
+def test_fmu_hidden_effect():
+    from ident.params import DriveParams
+
+    if "b_m" not in DriveParams.__dataclass_fields__:
+        pytest.skip("DriveParams has no effect parameters (b_m, stribeck_ratio, friction_asymmetry, ...) yet: the "
+                    "FMU cannot generate a log with a hidden effect")
+    pytest.skip("FMU-based rigid test not written yet (effect parameters appeared after this test was written)")

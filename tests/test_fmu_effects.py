@@ -1,0 +1,636 @@
+"""The optional effect library of the FMU (physics.md section 5) against independent truth.
+
+Effects (all off by default): viscous friction b_m / b_l, Stribeck friction (stribeck_ratio, stribeck_velocity),
+asymmetric friction, hardening spring, Dahl hysteresis, kinematic error. With any of them on the FMU uses its
+general propagator (fixed-substep RK4 with the stick/slip and hysteresis modes held inside a substep and events
+located by bisection); with all off the closed-form path, bit for bit. The truths used here:
+
+- closed-form solutions: the damped oscillator, the Duffing period (``scipy.integrate.quad``), the Coulomb decay
+  with asymmetric levels, a load resting on the kinematic-error equilibrium, the Dahl branch z(d);
+- the energy balance of the conservative effects;
+- an independent event-driven ``scipy.integrate.solve_ivp`` (DOP853) simulator written here (Karnopp decisions
+  at every velocity zero and band exit, the Dahl element integrated as an ODE), sharing no code with model.c;
+- the FMU's own closed-form path (an effect set to a vanishing 1e-300 selects the general propagator).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import quad, solve_ivp
+
+from fmu_build import variables as V
+from ident import DriveParams, ParameterError, Plant, PlantError
+
+NOMINAL = DriveParams()
+EFFECTS = ("b_m", "b_l", "stribeck_ratio", "stribeck_velocity", "friction_asymmetry", "hardening",
+           "hysteresis_torque", "hysteresis_stiffness", "kinematic_error", "kinematic_error_phase")
+# Every effect on at realistic magnitudes for the nominal drive (the brief's ranges).
+ALL_ON = dict(b_m=1e-4, b_l=1.0, stribeck_ratio=0.5, stribeck_velocity=5e-4, friction_asymmetry=0.2,
+              hardening=3e6, hysteresis_torque=3e-3, hysteresis_stiffness=1e4, kinematic_error=5e-5,
+              kinematic_error_phase=0.3)
+CONSERVATIVE_AND_FRICTION = {k: v for k, v in ALL_ON.items() if not k.startswith("hysteresis")}
+# The load on the kinematic-error equilibrium of q_m = 0: the drive starts at rest with a relaxed spring.
+Q_L_EQ = ALL_ON["kinematic_error"] * math.sin(ALL_ON["kinematic_error_phase"])
+
+
+@pytest.fixture(params=[2, 3], ids=["fmi2", "fmi3"])
+def fmi(request) -> int:
+    return request.param
+
+
+def traj(plant: Plant, torques, dt: float, outputs=("q_m", "q_l", "v_m", "v_l")) -> np.ndarray:
+    return plant.trajectory(np.asarray(torques, dtype=float), dt, outputs)
+
+
+def pulse_train(p: DriveParams, dt: float, t_end: float) -> np.ndarray:
+    """+/- pulses of a few static levels, 1 ms wide, with rests between (a torque per step of dt)."""
+    t = np.arange(round(t_end / dt)) * dt
+    u = np.zeros_like(t)
+    for t0, amp in ((0.0, 3.0), (0.03, -4.0), (0.05, 2.5), (0.09, -2.2), (0.12, 5.0)):
+        u[(t >= t0 - 1e-12) & (t < t0 + 1e-3 - 1e-12)] = amp * p.f_m
+    return u
+
+
+# ---------------------------------------------------------------------------- independent reference (scipy) ----
+
+class Reference:
+    """Event-driven DOP853 simulation of the plant with every effect, written from the equations (not from model.c).
+
+    State y = (q_m, q_l, v_m, v_l, z). Modes: stuck / slip direction per body, branch direction of the Dahl element.
+    Inside a segment the modes are fixed; solve_ivp stops at the first event, where the Karnopp rule re-decides.
+    """
+
+    def __init__(self, p: DriveParams, q_m=0.0, q_l=0.0, v_m=0.0, v_l=0.0):
+        self.p = p
+        self.y = np.array([q_m, q_l, v_m, v_l, 0.0])
+        self.T = 0.0
+        self.stuck = [v_m == 0.0, v_l == 0.0]
+        self.dir = [1 if v_m >= 0 else -1, 1 if v_l >= 0 else -1]
+        self.hdir = 1
+        self.decide()
+
+    def spring(self, y):
+        p = self.p
+        ph = 2 * y[0] + p.kinematic_error_phase
+        d = p.r * y[0] + p.kinematic_error * math.sin(ph) - y[1]
+        g = p.r + 2 * p.kinematic_error * math.cos(ph)
+        return d, g, p.K_s * (d + p.hardening * d ** 3) + y[4]
+
+    def levels(self, body):
+        p = self.p
+        f = p.f_m if body == 0 else p.f_l
+        s, a = p.stribeck_ratio, p.friction_asymmetry
+        return f * (1 + a) * (1 + s), f * (1 - a) * (1 + s)  # static levels for + and - motion
+
+    def net(self, y):
+        d, g, tau = self.spring(y)
+        return self.T - g * tau, tau
+
+    def friction(self, body, v):
+        p = self.p
+        f, b = (p.f_m, p.b_m) if body == 0 else (p.f_l, p.b_l)
+        vs = p.stribeck_velocity / (p.r if body == 0 else 1.0)
+        di = self.dir[body]
+        return di * f * (1 + p.friction_asymmetry * di) * (1 + p.stribeck_ratio * math.exp(-(v / vs) ** 2)) + b * v
+
+    def rhs(self, t, y):
+        p = self.p
+        d, g, tau = self.spring(y)
+        N = (self.T - g * tau, tau)
+        J = (p.J_m, p.J_l)
+        dy = np.zeros(5)
+        v = [0.0 if self.stuck[i] else y[2 + i] for i in range(2)]
+        for i in range(2):
+            if not self.stuck[i]:
+                dy[i] = v[i]
+                dy[2 + i] = (N[i] - self.friction(i, v[i])) / J[i]
+        if p.hysteresis_torque > 0:
+            dd = g * v[0] - v[1]
+            dy[4] = p.hysteresis_stiffness * dd * (1 - self.hdir * y[4] / p.hysteresis_torque)
+        return dy
+
+    def decide(self):
+        N = self.net(self.y)
+        for i in range(2):
+            f = self.p.f_m if i == 0 else self.p.f_l
+            if self.stuck[i] or self.y[2 + i] == 0.0 or (f > 0 and -self.dir[i] * self.y[2 + i] >= 0):
+                self.y[2 + i] = 0.0
+                up, down = self.levels(i)
+                if N[i] > up:
+                    self.stuck[i], self.dir[i] = False, 1
+                elif N[i] < -down:
+                    self.stuck[i], self.dir[i] = False, -1
+                else:
+                    self.stuck[i] = True
+        if self.p.hysteresis_torque > 0:
+            d, g, tau = self.spring(self.y)
+            dd = g * self.y[2] - self.y[3]
+            if dd == 0.0:
+                a = self.rhs(0.0, self.y)
+                dd = g * a[2] - a[3]
+            if self.hdir * dd < 0:
+                self.hdir = -self.hdir
+
+    def events(self):
+        evs = []
+        for i in range(2):
+            f = self.p.f_m if i == 0 else self.p.f_l
+            if not self.stuck[i] and f > 0:
+                evs.append(("v", i, lambda t, y, i=i: -self.dir[i] * y[2 + i]))
+            if self.stuck[i]:
+                up, down = self.levels(i)
+                evs.append(("b+", i, lambda t, y, i=i, up=up: self.net(y)[i] - up))
+                evs.append(("b-", i, lambda t, y, i=i, down=down: -self.net(y)[i] - down))
+        if self.p.hysteresis_torque > 0:
+            def hyst(t, y):
+                d, g, tau = self.spring(y)
+                v = [0.0 if self.stuck[k] else y[2 + k] for k in range(2)]
+                return -self.hdir * (g * v[0] - v[1])
+            evs.append(("h", 2, hyst))
+        for _, _, fn in evs:
+            fn.terminal, fn.direction = True, 1
+        return evs
+
+    def advance(self, T: float, h: float) -> np.ndarray:
+        self.T = T
+        self.decide()
+        t = 0.0
+        for _ in range(100_000):
+            if t >= h or (self.stuck[0] and self.stuck[1]):
+                return self.y.copy()
+            evs = self.events()
+            sol = solve_ivp(self.rhs, (t, h), self.y, method="DOP853", rtol=1e-12,
+                            atol=[1e-16, 1e-16, 1e-13, 1e-15, 1e-16], events=[e[2] for e in evs])
+            if sol.status == 1:
+                k = next(k for k, te in enumerate(sol.t_events) if len(te))
+                t = sol.t_events[k][0]
+                self.y = sol.y_events[k][0].copy()
+                kind, body, _ = evs[k]
+                # the root is located to a tolerance, maybe just before the crossing: apply what the event means
+                if kind == "v":
+                    self.y[2 + body] = 0.0
+                    self.decide()
+                elif kind == "h":
+                    self.hdir = -self.hdir
+                else:
+                    self.stuck[body], self.dir[body] = False, 1 if kind == "b+" else -1
+            else:
+                self.y = sol.y[:, -1].copy()
+                t = h
+        raise AssertionError("too many events in the reference")
+
+
+# ---------------------------------------------------------------------------- 1. viscous ringing -----------------
+
+def damped(x0: float, w0: float, zeta: float, t: np.ndarray) -> np.ndarray:
+    """x(t) of x'' + 2 zeta w0 x' + w0^2 x = 0 from x(0) = x0, x'(0) = 0."""
+    wd = w0 * math.sqrt(1 - zeta ** 2)
+    return x0 * np.exp(-zeta * w0 * t) * (np.cos(wd * t) + zeta * w0 / wd * np.sin(wd * t))
+
+
+def peak_ratio_and_period(t: np.ndarray, x: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[float, float]:
+    """Successive maxima of x located by cubic Hermite interpolation of v (with v' = a) between samples."""
+    peaks = []
+    for k in np.flatnonzero((v[:-1] > 0) & (v[1:] <= 0)):
+        h = t[k + 1] - t[k]
+        # cubic Hermite of v on [0, 1], root by Newton from linear interpolation
+        p0, p1, m0, m1 = v[k], v[k + 1], a[k] * h, a[k + 1] * h
+        s = p0 / (p0 - p1) if p0 != p1 else 0.5
+        for _ in range(50):
+            h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+            f = h00 * p0 + h10 * m0 + h01 * p1 + h11 * m1
+            df = (6 * s**2 - 6 * s) * p0 + (3 * s**2 - 4 * s + 1) * m0 + (-6 * s**2 + 6 * s) * p1 + (3 * s**2 - 2 * s) * m1
+            s -= f / df
+        peaks.append(t[k] + s * h)
+    return peaks
+
+
+def test_viscous_load_ringing_decay(fmi: int) -> None:
+    """Motor held by a huge static level, frictionless load with viscous b_l released from a deflection: the load
+    follows x(t) = e^(-zeta w0 t)(cos wd t + zeta w0/wd sin wd t), w0^2 = K_s/J_l, zeta = b_l/(2 sqrt(K_s J_l))."""
+    p = NOMINAL.with_values(f_m=1e3, f_l=0.0, b_l=2.0)
+    x0 = 3e-5
+    w0, zeta = math.sqrt(p.K_s / p.J_l), p.b_l / (2 * math.sqrt(p.K_s * p.J_l))
+    dt, n = 1e-4, 3000
+    with Plant(p, fmi_version=fmi, q_l_start=x0) as plant:
+        out = traj(plant, np.zeros(n), dt, ("q_m", "q_l", "v_l", "spring_torque", "motor_friction_torque"))
+    t = np.arange(n + 1) * dt
+    assert np.all(out[:, 0] == 0.0)  # the motor never moves
+    np.testing.assert_allclose(out[:, 1], damped(x0, w0, zeta, t), rtol=0, atol=1e-8 * x0)
+    # ratio of successive peaks and the damped period, from the sampled trajectory
+    a = (out[:, 3] - p.b_l * out[:, 2]) / p.J_l
+    peaks = peak_ratio_and_period(t, out[:, 1], out[:, 2], a)
+    wd = w0 * math.sqrt(1 - zeta**2)
+    assert len(peaks) >= 8
+    np.testing.assert_allclose(np.diff(peaks), 2 * math.pi / wd, rtol=1e-8)
+    x_peaks = damped(x0, w0, zeta, np.array(peaks))
+    ratio = x_peaks[1:] / x_peaks[:-1]
+    np.testing.assert_allclose(ratio, math.exp(-2 * math.pi * zeta / math.sqrt(1 - zeta**2)), rtol=1e-7)
+    # the motor's holding reaction is its whole net torque: -g tau_s
+    np.testing.assert_allclose(out[:, 4], -p.r * out[:, 3], rtol=1e-14, atol=0)
+
+
+def test_viscous_motor_ringing_decay(fmi: int) -> None:
+    """Load held, frictionless motor with viscous b_m rings on the reflected stiffness r^2 K_s."""
+    p = NOMINAL.with_values(f_m=0.0, f_l=1e3, b_m=1e-4)
+    q0 = 2e-3
+    k = p.r ** 2 * p.K_s
+    w0, zeta = math.sqrt(k / p.J_m), p.b_m / (2 * math.sqrt(k * p.J_m))
+    dt, n = 2e-5, 8000
+    with Plant(p, fmi_version=fmi, q_m_start=q0) as plant:
+        out = traj(plant, np.zeros(n), dt, ("q_m", "q_l", "v_m", "motor_friction_torque"))
+    t = np.arange(n + 1) * dt
+    assert np.all(out[:, 1] == 0.0)
+    np.testing.assert_allclose(out[:, 0], damped(q0, w0, zeta, t), rtol=0, atol=1e-8 * q0)
+    np.testing.assert_allclose(out[:, 3], p.b_m * out[:, 2], rtol=1e-14, atol=0)  # f_m = 0: only viscous
+    x = damped(q0, w0, zeta, t)
+    envelope_ratio = math.exp(-2 * math.pi * zeta / math.sqrt(1 - zeta**2))
+    assert envelope_ratio < 0.95  # the test sees real damping
+
+
+# ---------------------------------------------------------------------------- 2. hardening (Duffing) -------------
+
+def duffing_period(K: float, J: float, h: float, A: float) -> float:
+    """T = 4 int_0^A dx / sqrt((2/J)(V(A) - V(x))), V = K (x^2/2 + h x^4/4), with x = A sin u."""
+    val, err = quad(lambda u: 1 / math.sqrt((K / J) * (1 + h * A**2 * (1 + math.sin(u) ** 2) / 2)), 0, math.pi / 2,
+                    epsabs=0, epsrel=1e-13)
+    return 4 * val
+
+
+def test_hardening_duffing_period(fmi: int) -> None:
+    p = NOMINAL.with_values(f_m=1e3, f_l=0.0, hardening=4e7)
+    A = 1e-4  # h A^2 = 0.4: the frequency is ~13 % above the linear one
+    T = duffing_period(p.K_s, p.J_l, p.hardening, A)
+    T_lin = 2 * math.pi / math.sqrt(p.K_s / p.J_l)
+    assert T < 0.9 * T_lin
+    dt, n = 1e-5, 12000
+    with Plant(p, fmi_version=fmi, q_l_start=-A) as plant:  # d = +A
+        out = traj(plant, np.zeros(n), dt, ("q_l", "v_l", "spring_torque", "deflection"))
+    t = np.arange(n + 1) * dt
+    a = out[:, 2] / p.J_l
+    # maxima of the deflection d = -q_l: minima of q_l, where v_l goes from - to +
+    peaks = peak_ratio_and_period(t, -out[:, 0], -out[:, 1], -a)
+    assert len(peaks) >= 9
+    periods = np.diff(peaks)
+    np.testing.assert_allclose(periods, T, rtol=1e-8)
+    np.testing.assert_allclose((peaks[-1] - peaks[0]) / (len(peaks) - 1), T, rtol=1e-9)
+    np.testing.assert_allclose(out[:, 3], -out[:, 0], rtol=0, atol=0)  # deflection output = r q_m - q_l
+    assert np.max(np.abs(out[:, 3])) == pytest.approx(A, rel=1e-9)  # conservative: amplitude kept
+
+
+# ---------------------------------------------------------------------------- 3. kinematic error ------------------
+
+@pytest.mark.parametrize("q_m0", [0.0, 0.37, 1.1, -2.3, 5.0])
+def test_kinematic_error_equilibrium(fmi: int, q_m0: float) -> None:
+    """Motor held, free load released 2e-5 rad off: it rings about r q_m + A sin(2 q_m + phi) as an undamped
+    oscillator, q_l(t) = q_eq + delta cos(w0 t)."""
+    A, phi = 8e-5, 0.4
+    p = NOMINAL.with_values(f_m=1e3, f_l=0.0, kinematic_error=A, kinematic_error_phase=phi)
+    q_eq = p.r * q_m0 + A * math.sin(2 * q_m0 + phi)
+    delta = 2e-5
+    dt, n = 1e-4, 2000
+    w0 = math.sqrt(p.K_s / p.J_l)
+    with Plant(p, fmi_version=fmi, q_m_start=q_m0, q_l_start=q_eq + delta) as plant:
+        out = traj(plant, np.zeros(n), dt, ("q_m", "q_l", "deflection"))
+        assert np.all(out[:, 0] == q_m0)
+        t = np.arange(n + 1) * dt
+        np.testing.assert_allclose(out[:, 1], q_eq + delta * np.cos(w0 * t), rtol=0, atol=2e-8 * delta)
+        np.testing.assert_allclose(out[:, 2], q_eq - out[:, 1], rtol=0, atol=1e-15)
+        # placed exactly on the equilibrium it does not move at all
+        plant.reset(q_m_start=q_m0, q_l_start=q_eq)
+        out = traj(plant, np.zeros(1000), 1e-3, ("q_l", "v_l"))
+        assert np.all(np.abs(out[:, 0] - q_eq) <= 1e-18) and np.all(np.abs(out[:, 1]) <= 1e-15)
+
+
+def test_kinematic_error_waveform(fmi: int) -> None:
+    """Frictionless motor coasting through more than one turn, load following through a stiff spring: the load
+    angle traces r q_m + A sin(2 q_m + phi) (twice per wave-generator turn)."""
+    A, phi = 1e-4, -0.8
+    p = NOMINAL.with_values(f_m=0.0, f_l=0.0, K_s=1e7, kinematic_error=A, kinematic_error_phase=phi)
+    v0 = 20.0
+    g0 = p.r + 2 * A * math.cos(phi)
+    with Plant(p, fmi_version=fmi, q_l_start=A * math.sin(phi), v_m_start=v0, v_l_start=g0 * v0) as plant:
+        out = traj(plant, np.zeros(400), 1e-3, ("q_m", "q_l"))
+    q_m, q_l = out[:, 0], out[:, 1]
+    assert q_m[-1] > 2 * math.pi  # more than one turn: both error periods seen
+    err = q_l - p.r * q_m
+    np.testing.assert_allclose(err, A * np.sin(2 * q_m + phi), rtol=0, atol=3e-5 * A)
+    assert np.ptp(err) > 1.9 * A
+
+
+# ---------------------------------------------------------------------------- 4. asymmetric friction -------------
+
+def test_asymmetric_coulomb_decay(fmi: int) -> None:
+    """Motor held, load released: each half swing is a sinusoid about the centre -+f(1 +- a)/K_s (level f(1+a)
+    moving forwards, f(1-a) backwards), turning every pi/w0, until a turning point lies in the static band."""
+    a = 0.3
+    p = NOMINAL.with_values(f_m=1e3, friction_asymmetry=a)
+    f, K = p.f_l, p.K_s
+    x = -1.3e-6  # q_l: d = 1.3e-6 > 0 pushes it forwards
+    expected = [x]
+    while True:
+        if -K * x > f * (1 + a):        # moves forwards
+            x = 2 * (-f * (1 + a) / K) - x
+        elif -K * x < -f * (1 - a):     # moves backwards
+            x = 2 * (f * (1 - a) / K) - x
+        else:
+            break
+        expected.append(x)
+    assert len(expected) >= 4
+    half = math.pi / math.sqrt(K / p.J_l)
+    with Plant(p, fmi_version=fmi, q_l_start=expected[0]) as plant:
+        got = [expected[0]]
+        for k in range(len(expected) - 1):
+            got.append(plant.step(0.0, half).q_l)
+        s = plant.step(0.0, 1e-3)
+        assert s.load_stuck and s.motor_stuck
+        final = s.q_l
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9 * abs(expected[0]))
+    assert final == pytest.approx(expected[-1], abs=1e-9 * abs(expected[0]))
+
+
+def _ramp_breakaway(p: DriveParams, sign: float, fmi: int, level: float) -> tuple[float, float]:
+    """Load stuck, motor (no Coulomb friction, heavy viscous damping) wound by a slow torque ramp: the spring torque
+    at the last sample with the load stuck and at the first with it slipping."""
+    dt, n = 1e-4, 20000
+    T = sign * np.linspace(0, 1.5 * level * p.r, n)
+    with Plant(p, fmi_version=fmi) as plant:
+        out = traj(plant, T, dt, ("spring_torque", "v_l", "q_l"))
+    moving = np.flatnonzero(out[:, 2] != 0.0)
+    assert moving.size, "the load never broke away"
+    k = moving[0]
+    return out[k - 1, 0], out[k, 0]
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_asymmetric_breakaway_levels(fmi: int, sign: float) -> None:
+    a, s = 0.25, 0.4
+    p = NOMINAL.with_values(f_m=0.0, b_m=0.1, friction_asymmetry=a, stribeck_ratio=s)
+    level = p.f_l * (1 + sign * a) * (1 + s)
+    before, after = _ramp_breakaway(p, sign, fmi, level)
+    ramp_step = 1.5 * level / 20000
+    assert sign * before <= level < sign * after + 1e-12 * level
+    assert level - sign * before < 3 * ramp_step
+
+
+# ---------------------------------------------------------------------------- 5. Stribeck -------------------------
+
+@pytest.mark.parametrize("sign", [1, -1])
+def test_stribeck_breakaway_is_exact(fmi: int, sign: int) -> None:
+    """A stuck motor at zero deflection feels N = T: it holds at exactly T = +f(1+a)(1+s) (resp. -f(1-a)(1+s)) and
+    breaks away at the next double."""
+    a, s = 0.2, 0.7
+    p = NOMINAL.with_values(stribeck_ratio=s, friction_asymmetry=a, f_l=1e3)
+    level = p.f_m * (1 + a * sign) * (1 + s)
+    with Plant(p, fmi_version=fmi) as plant:
+        st = plant.step(sign * level, 1e-3)
+        assert st.motor_stuck and st.q_m == 0.0
+        st = plant.step(math.nextafter(sign * level, sign * math.inf), 1e-3)
+        assert not st.motor_stuck and sign * st.q_m > 0
+
+
+def test_stribeck_slide_against_scipy(fmi: int) -> None:
+    """Motor breaks away (load held) and slides under the Stribeck law back to rest against its spring; the
+    trajectory matches the independent DOP853 reference, and the friction output matches the formula."""
+    p = NOMINAL.with_values(f_l=1e3, stribeck_ratio=0.8, stribeck_velocity=2e-4, friction_asymmetry=0.15, b_m=5e-5)
+    level = p.f_m * (1 + 0.15) * (1 + 0.8)
+    dt = 2e-4
+    torques = np.concatenate([np.full(10, 1.02 * level), np.zeros(140)])
+    with Plant(p, fmi_version=fmi) as plant:
+        out = traj(plant, torques, dt, ("q_m", "v_m", "motor_friction_torque"))
+    ref = Reference(p)
+    got = [ref.y.copy()]
+    for T in torques:
+        got.append(ref.advance(T, dt))
+    got = np.array(got)
+    np.testing.assert_allclose(out[:, 0], got[:, 0], rtol=0, atol=1e-10)
+    assert np.max(np.abs(out[:, 0])) > 1e-3  # it did slide
+    sliding = out[:, 1] != 0
+    v = out[sliding, 1]
+    vs = p.stribeck_velocity / p.r
+    di = np.sign(v)
+    F = di * p.f_m * (1 + 0.15 * di) * (1 + 0.8 * np.exp(-(v / vs) ** 2)) + p.b_m * v
+    np.testing.assert_allclose(out[sliding, 2], F, rtol=1e-13)
+    assert np.any(np.abs(v) < 2 * vs), "the slide never reached the Stribeck range"
+
+
+# ---------------------------------------------------------------------------- 6. hysteresis ----------------------
+
+def test_hysteresis_dahl_branches(fmi: int) -> None:
+    """Load held, motor (viscously damped, no Coulomb friction) twists the spring slowly up, then down: z follows
+    H (1 - exp(-sigma d / H)) on the rising branch, -H + (z_r + H) exp(sigma (d - d_r)/H) after the reversal,
+    never exceeds H, and torque vs twist encloses a loop."""
+    H, sigma = 5e-3, 2e4
+    p = NOMINAL.with_values(f_m=0.0, f_l=1e3, b_m=0.05, hysteresis_torque=H, hysteresis_stiffness=sigma)
+    n = 6000
+    T = np.concatenate([np.linspace(0, 0.4, n), np.linspace(0.4, -0.4, 2 * n)]) * p.r * 1e-3 * p.K_s * 1e-2
+    with Plant(p, fmi_version=fmi) as plant:
+        out = traj(plant, T, 1e-4, ("deflection", "hysteresis_state", "spring_torque"))
+    d, z, tau = out[:, 0], out[:, 1], out[:, 2]
+    k_r = int(np.argmax(d))
+    assert np.all(np.diff(d[: k_r + 1]) >= 0) and np.all(np.diff(d[k_r:]) <= 0)  # two monotone branches
+    assert d[k_r] > 5 * H / sigma  # saturated well into the branch
+    # the reversal falls between samples: check the samples before it on the rising branch from (0, 0), those after
+    # it on the falling branch through the first sample after it
+    up = slice(0, k_r)
+    np.testing.assert_allclose(z[up], H * (1 - np.exp(-sigma * d[up] / H)), rtol=1e-12, atol=1e-15 * H)
+    d_r, z_r = d[k_r + 1], z[k_r + 1]
+    down = slice(k_r + 1, None)
+    np.testing.assert_allclose(z[down], -H + (z_r + H) * np.exp(sigma * (d[down] - d_r) / H), rtol=1e-12,
+                               atol=1e-15 * H)
+    assert np.max(np.abs(z)) <= H
+    np.testing.assert_allclose(tau, p.K_s * d + z, rtol=1e-14, atol=1e-20)
+    # loop: at the same twist, the torque on the way up exceeds the torque on the way down by up to 2 H
+    up_d, up_tau = d[: k_r + 1], tau[: k_r + 1]
+    mask = (d[down] > up_d[0]) & (d[down] < up_d[-1])
+    tau_up_at = np.interp(d[down][mask], up_d, up_tau)
+    gap = tau_up_at - tau[down][mask]
+    assert np.all(gap > 0) and 1.99 * H < np.max(gap) <= 2 * H
+
+
+# ---------------------------------------------------------------------------- 7. energy balance ------------------
+
+def test_energy_balance_with_effects(fmi: int) -> None:
+    p = NOMINAL.with_values(**CONSERVATIVE_AND_FRICTION)
+    dt = 2e-4
+    u = pulse_train(p, dt, 0.16)
+    with Plant(p, fmi_version=fmi, q_l_start=Q_L_EQ) as plant:
+        out = traj(plant, u, dt, ("v_m", "v_l", "deflection", "input_work", "friction_work"))
+    v_m, v_l, d, w_in, w_fr = out.T
+    kinetic = 0.5 * p.J_m * v_m**2 + 0.5 * p.J_l * v_l**2
+    potential = p.K_s * (d**2 / 2 + p.hardening * d**4 / 4)
+    residual = w_in - w_fr - kinetic - potential
+    assert np.max(np.abs(residual)) <= 1e-8 * w_in[-1], np.max(np.abs(residual)) / w_in[-1]
+    assert w_fr[-1] > 0.5 * w_in[-1]
+
+
+# ---------------------------------------------------------------------------- 8. cross-check with scipy ----------
+
+def test_all_effects_against_scipy_reference(fmi: int) -> None:
+    p = NOMINAL.with_values(**ALL_ON)
+    dt = 2e-4
+    u = pulse_train(p, dt, 0.16)
+    with Plant(p, fmi_version=fmi, q_l_start=Q_L_EQ) as plant:
+        out = traj(plant, u, dt, ("q_m", "q_l", "v_m", "v_l", "hysteresis_state"))
+    ref = Reference(p, q_l=Q_L_EQ)
+    got = [ref.y.copy()]
+    for T in u:
+        got.append(ref.advance(T, dt))
+    got = np.array(got)
+    err_m = np.max(np.abs(out[:, 0] - got[:, 0]))
+    err_l = np.max(np.abs(out[:, 1] - got[:, 1]))
+    err_z = np.max(np.abs(out[:, 4] - got[:, 4]))
+    print(f"max |q_m - ref| = {err_m:.3g} rad, |q_l - ref| = {err_l:.3g} rad, |z - ref| = {err_z:.3g} N.m")
+    assert np.ptp(out[:, 1]) > 1e-5 and np.ptp(out[:, 4]) > 1e-3  # real motion, hysteresis active both ways
+    assert err_m < 1e-10 and err_l < 1e-12  # measured: 3.8e-12 and 5.4e-14 rad
+    assert err_z < 1e-8 * p.hysteresis_torque  # measured: 2.2e-11 N.m
+
+
+# ---------------------------------------------------------------------------- 9. exact stick-slip kept ------------
+
+@pytest.mark.parametrize("wound", [False, True])
+def test_rest_is_bit_exact_with_effects(wound: bool) -> None:
+    p = NOMINAL.with_values(**ALL_ON)
+    q_l0 = Q_L_EQ - (0.9 * p.f_l / p.K_s if wound else 0.0)
+    with Plant(p, q_l_start=q_l0) as plant:
+        first = plant.sample()
+        out = traj(plant, np.zeros(100_000), 1e-3, ("q_m", "q_l", "v_m", "v_l", "hysteresis_state"))
+        s = plant.sample()
+    assert np.all(out[:, 0] == first.q_m) and np.all(out[:, 1] == q_l0)
+    assert np.all(out[:, 2:4] == 0.0) and np.all(out[:, 4] == 0.0) and s.at_rest
+
+
+def _state(plant: Plant) -> np.ndarray:
+    s = plant.sample()
+    w = plant.energy()
+    return np.array([s.q_m, s.q_l, s.v_m, s.v_l, w[0], w[1]])
+
+
+def test_step_size_independence_with_effects(fmi: int) -> None:
+    p = NOMINAL.with_values(**ALL_ON)
+    results = []
+    with Plant(p, fmi_version=fmi, q_l_start=Q_L_EQ - 3e-6) as plant:
+        for n in (1, 100):
+            plant.reset()
+            for _ in range(n):
+                plant.step(1.5 * p.f_m * 1.2 * 1.5, 1e-2 / n)
+            results.append(_state(plant))
+    a, b = results
+    scale = np.array([1e-3, 1e-5, 1e-2, 1e-3, 1e-9, 1e-9])
+    tol = 1e-9 * np.maximum(np.maximum(abs(a), abs(b)), scale)
+    assert np.all(abs(a - b) <= tol), (a, b, a - b)
+
+
+def test_serialize_mid_run_reproduces_bit_identically(fmi: int) -> None:
+    p = NOMINAL.with_values(**ALL_ON)
+    dt = 2e-4
+    u = pulse_train(p, dt, 0.1)
+    outs = ("q_m", "q_l", "v_m", "v_l", "hysteresis_state", "input_work", "friction_work")
+    with Plant(p, fmi_version=fmi, q_l_start=Q_L_EQ) as plant:
+        traj(plant, u[:160], dt, outs)
+        state = plant.save_state()
+        first = traj(plant, u[160:], dt, outs)
+        plant.restore_state(state)
+        again = traj(plant, u[160:], dt, outs)
+    with Plant(p, fmi_version=fmi, q_l_start=Q_L_EQ) as other:
+        other.restore_state(state)
+        third = traj(other, u[160:], dt, outs)
+    assert np.array_equal(first, again) and np.array_equal(first, third)
+
+
+def _raw_run(fmu_path, fmi: int, set_effects: bool, torques, dt) -> np.ndarray:
+    """fmpy directly: set no effect parameter at all, or set every one to its (off) start value."""
+    from fmpy import extract, instantiate_fmu, read_model_description
+    import shutil
+
+    md = read_model_description(str(fmu_path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    unzipdir = extract(str(fmu_path))
+    fmu = instantiate_fmu(unzipdir, md, fmi_type="CoSimulation")
+    names = ("q_m", "q_l", "v_m", "v_l", "spring_torque", "input_work", "friction_work")
+    rows = []
+    try:
+        set_real = fmu.setReal if fmi == 2 else fmu.setFloat64
+        get_real = fmu.getReal if fmi == 2 else fmu.getFloat64
+        set_real([vr["q_l_start"]], [-2e-5])
+        if set_effects:
+            set_real([vr[k] for k in EFFECTS], [float(V.BY_NAME[k].start) for k in EFFECTS])
+        if fmi == 2:
+            fmu.setupExperiment(startTime=0.0)
+            fmu.enterInitializationMode()
+        else:
+            fmu.enterInitializationMode(startTime=0.0)
+        fmu.exitInitializationMode()
+        t = 0.0
+        for T in torques:
+            set_real([vr["motor_torque"]], [T])
+            fmu.doStep(t, dt)
+            t += dt
+            rows.append(get_real([vr[n] for n in names]))
+    finally:
+        fmu.terminate()
+        fmu.freeInstance()
+        shutil.rmtree(unzipdir, ignore_errors=True)
+    return np.array(rows)
+
+
+def test_default_off_effects_leave_closed_form_bit_identical(fmu_any) -> None:
+    fmi = 2 if "fmi2" in fmu_any.parent.name else 3
+    dt = 5e-4
+    u = pulse_train(NOMINAL, dt, 0.1)
+    a = _raw_run(fmu_any, fmi, False, u, dt)
+    b = _raw_run(fmu_any, fmi, True, u, dt)
+    assert np.array_equal(a, b)
+    with Plant(fmi_version=fmi, q_l_start=-2e-5) as plant:  # ident.Plant sets every field: the same numbers
+        c = traj(plant, u, dt, ("q_m", "q_l", "v_m", "v_l", "spring_torque", "input_work", "friction_work"))
+    assert np.array_equal(a, c[1:])
+
+
+@pytest.mark.parametrize("effect", ["b_l", "hardening", "kinematic_error", "friction_asymmetry"])
+def test_general_propagator_matches_closed_form_for_vanishing_effect(fmi: int, effect: str) -> None:
+    """A vanishing effect (1e-300) selects the RK4 propagator with the base physics: it reproduces the exact
+    closed-form solution through stick-slip and a pulse train."""
+    dt = 2e-4
+    u = pulse_train(NOMINAL, dt, 0.16)
+    outs = ("q_m", "q_l", "v_m", "v_l", "input_work", "friction_work")
+    with Plant(fmi_version=fmi) as plant:
+        exact = traj(plant, u, dt, outs)
+        plant.reset(NOMINAL.with_values(**{effect: 1e-300}))
+        rk4 = traj(plant, u, dt, outs)
+    assert np.max(np.abs(rk4[:, 0] - exact[:, 0])) < 1e-10
+    assert np.max(np.abs(rk4[:, 1] - exact[:, 1])) < 1e-12
+    np.testing.assert_allclose(rk4[:, 4:], exact[:, 4:], rtol=1e-8, atol=1e-8 * exact[-1, 4])
+
+
+# ---------------------------------------------------------------------------- 10. bad input ----------------------
+
+@pytest.mark.parametrize("name,value", [("friction_asymmetry", 1.5), ("friction_asymmetry", -1.0),
+                                        ("hardening", -1.0), ("b_m", math.nan), ("b_l", -0.1),
+                                        ("stribeck_ratio", 11.0), ("stribeck_velocity", 0.0),
+                                        ("hysteresis_torque", math.inf), ("hysteresis_stiffness", 0.0),
+                                        ("kinematic_error", 2.0), ("kinematic_error_phase", math.nan)])
+def test_bad_effect_parameters_are_refused(fmi: int, name: str, value: float) -> None:
+    var = V.BY_NAME[name]
+    with pytest.raises(ParameterError, match=rf"{name} = .* is outside the allowed range"):
+        DriveParams(**{name: value})
+    with Plant(fmi_version=fmi) as plant:
+        fmu = plant._fmu
+        fmu.reset()
+        plant._messages.clear()
+        set_real = fmu.setReal if fmi == 2 else fmu.setFloat64
+        with pytest.raises(Exception):
+            set_real([var.vr], [value])
+        msg = plant._messages[-1]
+        assert f"{name} = " in msg and "allowed range" in msg and f"[{var.lo:g}, {var.hi:g}]" in msg, msg
+
+
+def test_effects_trajectory_outputs_exist() -> None:
+    with Plant(NOMINAL.with_values(**ALL_ON)) as plant:
+        out = traj(plant, np.full(10, 0.05), 1e-4, ("deflection", "hysteresis_state", "motor_friction_torque",
+                                                    "load_friction_torque"))
+    assert np.all(np.isfinite(out)) and np.ptp(out[:, 0]) > 0
+    with pytest.raises(PlantError):
+        with Plant(NOMINAL.with_values(**ALL_ON)) as plant:
+            plant.step(math.nan, 1e-3)
