@@ -101,6 +101,8 @@ VARIABLES: tuple[Variable, ...] = (
     _param("kinematic_error", 108, 0.0, 0.0, 1.0, "rad",
            "Amplitude A of the transmission error (load side), twice per wave-generator turn"),
     _param("kinematic_error_phase", 109, 0.0, -10.0, 10.0, "rad", "Phase phi of the transmission error"),
+    _param("viscous_asymmetry", 110, 0.0, -0.99, 0.99, "1",
+           "Viscous coefficients are b (1 + a_v) for positive and b (1 - a_v) for negative motion (both bodies)"),
 )
 
 BY_NAME: dict[str, Variable] = {v.name: v for v in VARIABLES}

@@ -24,8 +24,9 @@ nonlinearly: they are profiled (grid of log velocity, bounded 1-D search of the 
   depend on the direction. The library's ``friction_asymmetry`` ``a`` (``Fc (1 + a sgn v)``) covers the Coulomb
   part only, and on sliding rows ``Fc a`` is the same regressor as the offset, so on its own it cannot improve a
   model that has an offset. Here the effect is therefore the PDF's: Coulomb asymmetry ``a`` (replacing the offset,
-  which it absorbs) and, when the model has viscous friction, a viscous asymmetry ``Fv (1 + a_v sgn v)`` passed to
-  the library's friction as a direction-dependent ``b``. ``a_v`` has no FMU parameter (a note says so).
+  which it absorbs) and, when the model has viscous friction, the viscous asymmetry ``Fv (1 + a_v sgn v)``: the
+  library's (and the FMU's) ``viscous_asymmetry`` ``a_v``, the effect's second unknown. The exported rigid models
+  and the FMU therefore share both parameters (``Fc+- = Fc (1 +- a)``, ``Fv+- = Fv (1 +- a_v)``).
 - ``stribeck``: ``Fc (1 + s exp(-(v / v_s)^2))``; ``v_s`` is searched between 0.1 % and 50 % of the 99th
   percentile of |v| (a decay scale near the top speed only reshapes the friction-speed curve: that is not a
   Stribeck effect).
@@ -182,10 +183,9 @@ def _library_theta(spec: _Spec, b: dict[str, Any], v: Any, s: Any, vs: Any) -> d
         th["Fc"] = b["Fc"]
         th["offset"] = b["offset"]
     if spec.viscous:
-        if spec.asym:   # the PDF's eq. 12: the viscous level depends on the direction too
-            fv = (b["Fv_pos"] + b["Fv_neg"]) / 2
-            av = (b["Fv_pos"] - b["Fv_neg"]) / (b["Fv_pos"] + b["Fv_neg"])
-            th["Fv"] = fv * (1 + av * ca.sign(v))
+        if spec.asym:   # the PDF's eq. 12: the viscous level depends on the direction too (library viscous_asymmetry)
+            th["Fv"] = (b["Fv_pos"] + b["Fv_neg"]) / 2
+            th["viscous_asymmetry"] = (b["Fv_pos"] - b["Fv_neg"]) / (b["Fv_pos"] + b["Fv_neg"])
         else:
             th["Fv"] = b["Fv"]
     if spec.stribeck:
@@ -748,10 +748,10 @@ def diagnose_rigid(log: DriveLog, *, holdout: DriveLog | None = None, out_dir: s
             ne.evidence += " Magnitude: the larger of " + "; ".join(txt) + "."
     if final.spec.asym:
         notes.append("asymmetric_friction is the PDF's eq. 12 (Fc+, Fc-, and Fv+, Fv- when viscous friction is in the "
-                     "model; no offset, which the Coulomb asymmetry absorbs). The library/FMU parameter "
-                     "friction_asymmetry covers the Coulomb part only; the viscous asymmetry "
-                     f"(viscous_asymmetry = {final.params().get('viscous_asymmetry', 0.0):+.4f}) has no FMU parameter "
-                     "yet, so an exported FMU would carry Fv = (Fv+ + Fv-)/2 only.")
+                     "model; no offset, which the Coulomb asymmetry absorbs). In library/FMU parameters: "
+                     f"friction_asymmetry = {final.params()['friction_asymmetry']:+.4f} (Coulomb), viscous asymmetry "
+                     f"viscous_asymmetry = {final.params().get('viscous_asymmetry', 0.0):+.4f} on Fv = (Fv+ + Fv-)/2, "
+                     "so an exported FMU carries the whole model.")
     # where the final (and base) model still disagree
     table_base = _regimes(fits[0].e, p)
     table_final = _regimes(final.e, p)

@@ -11,14 +11,19 @@ Equations (SI, load-side angles; ``dir`` is a slipping body's direction, +1 / -1
     tau_s = K_s (d + hardening d^3) + z                       spring torque (hardening = K3/K_s)
     z'    = sigma dd (1 - sgn(dd) z / H),  dd = g v_m - v_l    Dahl hysteresis in parallel (H = 0: off)
     J_m v_m' = T - g tau_s - F_m          J_l v_l' = tau_s - F_l
-    F     = dir f (1 + a dir)(1 + s exp(-(v/v_s)^2)) + b v   a slipping body's friction
+    F     = dir f (1 + a dir)(1 + s exp(-(v/v_s)^2)) + b (1 + a_v dir) v   a slipping body's friction
     static band of a stuck body: -f (1 - a)(1 + s) <= N <= f (1 + a)(1 + s)
 
-``a`` = ``friction_asymmetry``, ``s`` = ``stribeck_ratio``, ``v_s`` = ``stribeck_velocity`` on the load side and
-``stribeck_velocity / r`` on the motor side, ``b`` = ``b_m`` / ``b_l``.
+``a`` = ``friction_asymmetry``, ``a_v`` = ``viscous_asymmetry`` (the viscous coefficient is b (1 + a_v) moving
+forwards, b (1 - a_v) backwards; both bodies), ``s`` = ``stribeck_ratio``, ``v_s`` = ``stribeck_velocity`` on the
+load side and ``stribeck_velocity / r`` on the motor side, ``b`` = ``b_m`` / ``b_l``.
 
 The rigid model (one body seen through the motor encoder, e.g. a linear axis in N and m) uses the same friction
-law: ``T = M q'' + F(q') + offset``.
+law: ``T = M q'' + F(q') + offset``; with both asymmetries it is the EMPS paper's ``Fc+, Fc-, Fv+, Fv-`` model
+(``Fc+- = Fc (1 +- a)``, ``Fv+- = Fv (1 +- a_v)``).
+
+The effect ``asymmetric_friction`` has two unknowns: the Coulomb asymmetry ``friction_asymmetry`` and the viscous
+asymmetry ``viscous_asymmetry`` (which only acts where there is viscous friction).
 
 Each :class:`Effect` knows its FMU parameters, how the fit sees them (scaled, bounded unknowns), its *magnitude*
 (the number a report quotes, with its unit) and the residual signature it leaves (used to explain the choice).
@@ -60,12 +65,12 @@ def friction_level(direction: Any, f: Any, asymmetry: Any = 0.0) -> Any:
 
 
 def sliding_friction(v: Any, f: Any, *, b: Any = 0.0, asymmetry: Any = 0.0, stribeck_ratio: Any = 0.0,
-                     stribeck_velocity: Any = 1.0, direction: Any | None = None) -> Any:
+                     stribeck_velocity: Any = 1.0, viscous_asymmetry: Any = 0.0, direction: Any | None = None) -> Any:
     """Friction torque on a slipping body (the term subtracted in J v' = ... - F):
-    dir f (1 + a dir)(1 + s exp(-(v/v_s)^2)) + b v; ``direction`` defaults to sgn(v)."""
+    dir f (1 + a dir)(1 + s exp(-(v/v_s)^2)) + b (1 + a_v dir) v; ``direction`` defaults to sgn(v)."""
     dirn = ca.sign(v) if direction is None else direction
     return dirn * friction_level(dirn, f, asymmetry) * (1 + stribeck_ratio * ca.exp(-(v / stribeck_velocity) ** 2)) \
-        + b * v
+        + b * (1 + viscous_asymmetry * dirn) * v
 
 
 def static_band(f: Any, asymmetry: Any = 0.0, stribeck_ratio: Any = 0.0) -> tuple[Any, Any]:
@@ -83,7 +88,8 @@ def slip_dynamics(params: dict[str, Any]) -> ca.Function:
     d = deflection(q_m, q_l, p["r"], p["kinematic_error"], p["kinematic_error_phase"])
     g = transmission(q_m, p["r"], p["kinematic_error"], p["kinematic_error_phase"])
     tau = spring_torque(d, p["K_s"], p["hardening"], z)
-    common = dict(asymmetry=p["friction_asymmetry"], stribeck_ratio=p["stribeck_ratio"])
+    common = dict(asymmetry=p["friction_asymmetry"], stribeck_ratio=p["stribeck_ratio"],
+                  viscous_asymmetry=p["viscous_asymmetry"])
     F_m = sliding_friction(v_m, p["f_m"], b=p["b_m"], stribeck_velocity=p["stribeck_velocity"] / p["r"], **common)
     F_l = sliding_friction(v_l, p["f_l"], b=p["b_l"], stribeck_velocity=p["stribeck_velocity"], **common)
     H = p["hysteresis_torque"]
@@ -93,12 +99,13 @@ def slip_dynamics(params: dict[str, Any]) -> ca.Function:
 
 
 def rigid_force(a: Any, v: Any, theta: dict[str, Any]) -> Any:
-    """The rigid model's force/torque: M a + F(v) + offset, F with viscous ``Fv``, Coulomb ``Fc``, asymmetry,
-    Stribeck (ratio, velocity) from ``theta`` (missing terms are off)."""
+    """The rigid model's force/torque: M a + F(v) + offset, F with viscous ``Fv``, Coulomb ``Fc``, (Coulomb)
+    ``asymmetry``, ``viscous_asymmetry``, Stribeck (ratio, velocity) from ``theta`` (missing terms are off)."""
     return theta["M"] * a + sliding_friction(v, theta["Fc"], b=theta.get("Fv", 0.0),
                                              asymmetry=theta.get("asymmetry", 0.0),
                                              stribeck_ratio=theta.get("stribeck_ratio", 0.0),
-                                             stribeck_velocity=theta.get("stribeck_velocity", 1.0)) \
+                                             stribeck_velocity=theta.get("stribeck_velocity", 1.0),
+                                             viscous_asymmetry=theta.get("viscous_asymmetry", 0.0)) \
         + theta.get("offset", 0.0)
 
 
@@ -111,7 +118,7 @@ def _nonzero(x: Any) -> bool:
 EFFECT_DEFAULTS: dict[str, float] = {
     "b_m": 0.0, "b_l": 0.0, "stribeck_ratio": 0.0, "stribeck_velocity": 1e-3, "friction_asymmetry": 0.0,
     "hardening": 0.0, "hysteresis_torque": 0.0, "hysteresis_stiffness": 1.0e4, "kinematic_error": 0.0,
-    "kinematic_error_phase": 0.0,
+    "kinematic_error_phase": 0.0, "viscous_asymmetry": 0.0,
 }
 
 
@@ -171,10 +178,10 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            ("two-inertia", "rigid"), lambda p: (1.0, _band_speed(p)),
            lambda v: v["stribeck_ratio"], "stribeck_ratio",
            ((0.3, 0.0), (0.3, 2.0), (0.3, -2.0), (1.0, 0.0))),
-    Effect("asymmetric_friction", (FitVar("friction_asymmetry", -0.99, 0.99),), "1",
-           "the residual's sign follows the direction of motion: positive and negative moves end at different "
-           "distances", ("two-inertia", "rigid"), lambda p: (1.0,),
-           lambda v: abs(v["friction_asymmetry"]), "friction_asymmetry", ((0.1,), (-0.1,))),
+    Effect("asymmetric_friction", (FitVar("friction_asymmetry", -0.99, 0.99), FitVar("viscous_asymmetry", -0.99, 0.99)),
+           "1", "the residual's sign follows the direction of motion: positive and negative moves end at different "
+           "distances", ("two-inertia", "rigid"), lambda p: (1.0, 1.0),
+           lambda v: abs(v["friction_asymmetry"]), "friction_asymmetry", ((0.1, 0.0), (-0.1, 0.0))),
     Effect("hardening", (FitVar("hardening", 0.0, 1e3),), "1/rad2",
            "ringing frequency rises with amplitude: phase error grows in large swings and vanishes in small ones",
            ("two-inertia",), lambda p: (1.0 / _band_deflection(p) ** 2,),

@@ -162,7 +162,7 @@ class OutputError:
 
 
 def _casadi_fit(problem: OutputError, theta0: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-                max_iter: int = 40) -> tuple[np.ndarray, dict[str, Any]]:
+                max_iter: int = 40, max_cpu_time: float = 1e6) -> tuple[np.ndarray, dict[str, Any]]:
     """min 0.5 |r(theta)|^2 / m with IPOPT; r is the FMU through a CasADi callback, Hessian Gauss-Newton."""
     import casadi as ca
 
@@ -211,7 +211,7 @@ def _casadi_fit(problem: OutputError, theta0: np.ndarray, lower: np.ndarray, upp
                         "ipopt": {"print_level": 0, "max_iter": max_iter, "tol": 1e-10, "mu_init": 1e-6,
                                   "acceptable_tol": 1e-4, "acceptable_obj_change_tol": 1e-8, "acceptable_iter": 3,
                                   # backtrack fast: a failed step on a kink is not worth 40 halvings
-                                  "alpha_red_factor": 0.1,
+                                  "alpha_red_factor": 0.1, "max_cpu_time": max_cpu_time,
                                   "sb": "yes"}})
     sol = solver(x0=theta0, lbx=lower, ubx=upper)
     stats = solver.stats()

@@ -62,6 +62,7 @@ class DriveParams:
     hysteresis_stiffness: float = V.BY_NAME["hysteresis_stiffness"].start  # N m/rad, Dahl initial stiffness
     kinematic_error: float = V.BY_NAME["kinematic_error"].start  # rad, transmission error amplitude (load side)
     kinematic_error_phase: float = V.BY_NAME["kinematic_error_phase"].start  # rad
+    viscous_asymmetry: float = V.BY_NAME["viscous_asymmetry"].start  # viscous coefficients b (1 +- a_v) for +- motion
 
     def __post_init__(self) -> None:
         for f in fields(self):

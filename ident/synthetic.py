@@ -96,3 +96,32 @@ def diagnosis_excitation(params: DriveParams, duration_s: float = 10.0, rate_hz:
             tau[k:k + width] = sign * rng.uniform(1.3, 5.0)
             k += width + int(rng.uniform(0.1, 0.35) / dt)
     return tau[:n] * params.f_m
+
+
+# Logs with one (or two) effects of the library hidden at a realistic magnitude on the nominal drive, for testing
+# the discrepancy workflow: name -> (hidden FMU parameters, the parameter holding the effect's magnitude, the
+# effects a diagnosis must name). Why realistic: b_m 1e-4 N m s/rad is 5 % of f_m at 5 rad/s; b_l 1 N m s/rad is
+# 2 % damping of the load's ringing; Stribeck static/Coulomb 1.5 with v_s = 1e-4 rad/s (a few um/s at the teeth);
+# asymmetry 15 %; hardening 3e6 /rad^2 stiffens the spring ~10 % at the 1e-4 rad a pulse winds; hysteresis torque
+# equal to the load friction; kinematic error 1e-5 rad (2 arcsec) at twice the wave-generator frequency.
+HIDDEN_EFFECT_CASES: dict[str, tuple[dict[str, float], str | None, list[str]]] = {
+    "viscous_motor": ({"b_m": 1e-4}, "b_m", ["viscous_motor"]),
+    "viscous_load": ({"b_l": 1.0}, "b_l", ["viscous_load"]),
+    "stribeck": ({"stribeck_ratio": 0.5, "stribeck_velocity": 1e-4}, "stribeck_ratio", ["stribeck"]),
+    "asymmetric_friction": ({"friction_asymmetry": 0.15}, "friction_asymmetry", ["asymmetric_friction"]),
+    "hardening": ({"hardening": 3e6}, "hardening", ["hardening"]),
+    "hysteresis": ({"hysteresis_torque": 1e-3, "hysteresis_stiffness": 1e4}, "hysteresis_torque", ["hysteresis"]),
+    "kinematic_error": ({"kinematic_error": 1e-5, "kinematic_error_phase": 0.7}, "kinematic_error",
+                        ["kinematic_error"]),
+    "flexibility": ({}, "K_s", ["flexibility"]),  # the nominal (flexible) drive, diagnosed from the rigid model
+    "clean": ({}, None, []),
+    "viscous_load+hardening": ({"b_l": 1.0, "hardening": 3e6}, None, ["viscous_load", "hardening"]),
+}
+
+
+def hidden_effect_log(case: str, duration_s: float = 6.0, seed: int = 3) -> DriveLog:
+    """A "measured" log of the nominal drive with the effects of ``HIDDEN_EFFECT_CASES[case]`` hidden in it."""
+    hidden = HIDDEN_EFFECT_CASES[case][0]
+    p = DriveParams().with_values(**hidden)
+    tau = diagnosis_excitation(p, duration_s, 5000.0, seed=seed)
+    return synthetic_log(p, tau, duration_s=duration_s, seed=seed + 2, load_offset_rad=1e-3)

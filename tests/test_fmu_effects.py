@@ -1,12 +1,14 @@
 """The optional effect library of the FMU (physics.md section 5) against independent truth.
 
-Effects (all off by default): viscous friction b_m / b_l, Stribeck friction (stribeck_ratio, stribeck_velocity),
-asymmetric friction, hardening spring, Dahl hysteresis, kinematic error. With any of them on the FMU uses its
+Effects (all off by default): viscous friction b_m / b_l (direction-dependent with viscous_asymmetry), Stribeck
+friction (stribeck_ratio, stribeck_velocity), asymmetric friction, hardening spring, Dahl hysteresis, kinematic
+error. With any of them on the FMU uses its
 general propagator (fixed-substep RK4 with the stick/slip and hysteresis modes held inside a substep and events
 located by bisection); with all off the closed-form path, bit for bit. The truths used here:
 
-- closed-form solutions: the damped oscillator, the Duffing period (``scipy.integrate.quad``), the Coulomb decay
-  with asymmetric levels, a load resting on the kinematic-error equilibrium, the Dahl branch z(d);
+- closed-form solutions: the damped oscillator (also with a direction-dependent damping, half-cycle by
+  half-cycle), the exponential decay of a viscous slide, the Duffing period (``scipy.integrate.quad``), the
+  Coulomb decay with asymmetric levels, a load resting on the kinematic-error equilibrium, the Dahl branch z(d);
 - the energy balance of the conservative effects;
 - an independent event-driven ``scipy.integrate.solve_ivp`` (DOP853) simulator written here (Karnopp decisions
   at every velocity zero and band exit, the Dahl element integrated as an ODE), sharing no code with model.c;
@@ -25,11 +27,11 @@ from ident import DriveParams, ParameterError, Plant, PlantError
 
 NOMINAL = DriveParams()
 EFFECTS = ("b_m", "b_l", "stribeck_ratio", "stribeck_velocity", "friction_asymmetry", "hardening",
-           "hysteresis_torque", "hysteresis_stiffness", "kinematic_error", "kinematic_error_phase")
+           "hysteresis_torque", "hysteresis_stiffness", "kinematic_error", "kinematic_error_phase", "viscous_asymmetry")
 # Every effect on at realistic magnitudes for the nominal drive (the brief's ranges).
 ALL_ON = dict(b_m=1e-4, b_l=1.0, stribeck_ratio=0.5, stribeck_velocity=5e-4, friction_asymmetry=0.2,
               hardening=3e6, hysteresis_torque=3e-3, hysteresis_stiffness=1e4, kinematic_error=5e-5,
-              kinematic_error_phase=0.3)
+              kinematic_error_phase=0.3, viscous_asymmetry=0.3)
 CONSERVATIVE_AND_FRICTION = {k: v for k, v in ALL_ON.items() if not k.startswith("hysteresis")}
 # The load on the kinematic-error equilibrium of q_m = 0: the drive starts at rest with a relaxed spring.
 Q_L_EQ = ALL_ON["kinematic_error"] * math.sin(ALL_ON["kinematic_error_phase"])
@@ -93,7 +95,8 @@ class Reference:
         f, b = (p.f_m, p.b_m) if body == 0 else (p.f_l, p.b_l)
         vs = p.stribeck_velocity / (p.r if body == 0 else 1.0)
         di = self.dir[body]
-        return di * f * (1 + p.friction_asymmetry * di) * (1 + p.stribeck_ratio * math.exp(-(v / vs) ** 2)) + b * v
+        return di * f * (1 + p.friction_asymmetry * di) * (1 + p.stribeck_ratio * math.exp(-(v / vs) ** 2)) \
+            + b * (1 + p.viscous_asymmetry * di) * v
 
     def rhs(self, t, y):
         p = self.p
@@ -248,6 +251,72 @@ def test_viscous_motor_ringing_decay(fmi: int) -> None:
     x = damped(q0, w0, zeta, t)
     envelope_ratio = math.exp(-2 * math.pi * zeta / math.sqrt(1 - zeta**2))
     assert envelope_ratio < 0.95  # the test sees real damping
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_viscous_asymmetry_slide_decays_exponentially(fmi: int, sign: float) -> None:
+    """Viscous asymmetry a_v: a slide in direction dir = +-1 decays as v(t) = v0 exp(-b (1 + a_v dir) t / J).
+    Both bodies slide without Coulomb friction, launched together (v_l = r v_m) with b_l / J_l = b_m / J_m, so the
+    spring stays relaxed (d = 0 exactly) and each body is a free viscous slide."""
+    a_v = 0.4
+    p = NOMINAL.with_values(f_m=0.0, f_l=0.0, b_m=1e-3, b_l=1e-3 * NOMINAL.J_l / NOMINAL.J_m, viscous_asymmetry=a_v)
+    v0 = sign * 50.0
+    dt, n = 1e-3, 100
+    with Plant(p, fmi_version=fmi, v_m_start=v0, v_l_start=p.r * v0) as plant:
+        out = traj(plant, np.zeros(n), dt, ("q_m", "q_l", "v_m", "v_l", "deflection", "motor_friction_torque",
+                                             "load_friction_torque"))
+    t = np.arange(n + 1) * dt
+    rate = p.b_m * (1 + a_v * sign) / p.J_m  # = b_l (1 + a_v dir) / J_l
+    assert rate * t[-1] > 2  # a real decay (rate 70 /s forwards, 30 /s backwards)
+    v_m = v0 * np.exp(-rate * t)
+    q_m = v0 / rate * -np.expm1(-rate * t)
+    np.testing.assert_allclose(out[:, 2], v_m, rtol=1e-9, atol=0)
+    np.testing.assert_allclose(out[:, 3], p.r * v_m, rtol=1e-9, atol=0)
+    np.testing.assert_allclose(out[:, 0], q_m, rtol=1e-9, atol=1e-12 * abs(q_m[-1]))
+    np.testing.assert_allclose(out[:, 1], p.r * q_m, rtol=1e-9, atol=1e-12 * abs(p.r * q_m[-1]))
+    assert np.max(np.abs(out[:, 4])) <= 1e-12 * abs(p.r * q_m[-1])
+    np.testing.assert_allclose(out[:, 5], p.b_m * (1 + a_v * sign) * out[:, 2], rtol=1e-14, atol=0)
+    np.testing.assert_allclose(out[:, 6], p.b_l * (1 + a_v * sign) * out[:, 3], rtol=1e-14, atol=0)
+
+
+def asymmetric_damped(x0: float, J: float, K: float, b: float, a_v: float, t: np.ndarray) -> np.ndarray:
+    """x(t) of J x'' + b (1 + a_v sgn x') x' + K x = 0 from x(0) = x0, x'(0) = 0: half-cycle by half-cycle, each a
+    damped oscillator from a turning point x_k, damping b (1 - a_v sgn x_k), lasting pi / w_d,k."""
+    x = np.full(t.shape, np.nan)
+    t0, xk = 0.0, x0
+    while t0 <= t[-1]:
+        sigma = b * (1 - a_v * math.copysign(1.0, xk)) / (2 * J)
+        wd = math.sqrt(K / J - sigma ** 2)
+        t1 = t0 + math.pi / wd
+        m = (t >= t0) & (t <= t1)
+        tau = t[m] - t0
+        x[m] = xk * np.exp(-sigma * tau) * (np.cos(wd * tau) + sigma / wd * np.sin(wd * tau))
+        t0, xk = t1, -xk * math.exp(-sigma * math.pi / wd)
+    return x
+
+
+def test_viscous_asymmetry_ringing_half_cycles(fmi: int) -> None:
+    """Motor held, load without Coulomb friction (b_l, a_v = 0.5) released from a deflection: every half-cycle is
+    the damped oscillator of its own direction's coefficient b (1 + a_v dir); the direction switches exactly at
+    each velocity zero (an event even without Coulomb friction, since the friction depends on the direction)."""
+    a_v = 0.5
+    p = NOMINAL.with_values(f_m=1e3, f_l=0.0, b_l=2.0, viscous_asymmetry=a_v)
+    x0 = 3e-5
+    dt, n = 1e-4, 3000
+    with Plant(p, fmi_version=fmi, q_l_start=x0) as plant:
+        out = traj(plant, np.zeros(n), dt, ("q_m", "q_l", "v_l", "load_friction_torque"))
+    t = np.arange(n + 1) * dt
+    truth = asymmetric_damped(x0, p.J_l, p.K_s, p.b_l, a_v, t)
+    assert np.all(out[:, 0] == 0.0)  # the motor never moves
+    np.testing.assert_allclose(out[:, 1], truth, rtol=0, atol=1e-8 * x0)
+    # the truth tells the directions apart: symmetric damping with either coefficient misses by far more
+    for b_eq in (p.b_l * (1 - a_v), p.b_l, p.b_l * (1 + a_v)):
+        assert np.max(np.abs(asymmetric_damped(x0, p.J_l, p.K_s, b_eq, 0.0, t) - truth)) > 1e-3 * x0
+    v = out[:, 2]
+    moving = v != 0
+    np.testing.assert_allclose(out[moving, 3], p.b_l * (1 + a_v * np.sign(v[moving])) * v[moving], rtol=1e-14,
+                               atol=0)
+    assert np.sum(np.diff(np.sign(v[moving])) != 0) >= 20  # many reversals
 
 
 # ---------------------------------------------------------------------------- 2. hardening (Duffing) -------------
@@ -588,7 +657,7 @@ def test_default_off_effects_leave_closed_form_bit_identical(fmu_any) -> None:
     assert np.array_equal(a, c[1:])
 
 
-@pytest.mark.parametrize("effect", ["b_l", "hardening", "kinematic_error", "friction_asymmetry"])
+@pytest.mark.parametrize("effect", ["b_l", "hardening", "kinematic_error", "friction_asymmetry", "viscous_asymmetry"])
 def test_general_propagator_matches_closed_form_for_vanishing_effect(fmi: int, effect: str) -> None:
     """A vanishing effect (1e-300) selects the RK4 propagator with the base physics: it reproduces the exact
     closed-form solution through stick-slip and a pulse train."""
@@ -610,7 +679,8 @@ def test_general_propagator_matches_closed_form_for_vanishing_effect(fmi: int, e
                                         ("hardening", -1.0), ("b_m", math.nan), ("b_l", -0.1),
                                         ("stribeck_ratio", 11.0), ("stribeck_velocity", 0.0),
                                         ("hysteresis_torque", math.inf), ("hysteresis_stiffness", 0.0),
-                                        ("kinematic_error", 2.0), ("kinematic_error_phase", math.nan)])
+                                        ("kinematic_error", 2.0), ("kinematic_error_phase", math.nan),
+                                        ("viscous_asymmetry", 1.0), ("viscous_asymmetry", -math.inf)])
 def test_bad_effect_parameters_are_refused(fmi: int, name: str, value: float) -> None:
     var = V.BY_NAME[name]
     with pytest.raises(ParameterError, match=rf"{name} = .* is outside the allowed range"):

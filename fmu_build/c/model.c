@@ -17,20 +17,22 @@
  * evaluated through the same state formulas that are committed, so the stick/slip decision taken after an event
  * always agrees with the event that triggered it (no Zeno loops from rounding).
  *
- * 2. General propagator (any optional effect on: viscous, Stribeck, asymmetric friction, hardening spring, Dahl
- * hysteresis, kinematic error). With d = r q_m + A sin(2 q_m + phi) - q_l, g = dd/dq_m = r + 2 A cos(2 q_m + phi),
- * tau_s = K_s (d + hardening d^3) + z:
+ * 2. General propagator (any optional effect on: viscous, also direction-dependent, Stribeck, asymmetric
+ * friction, hardening spring, Dahl hysteresis, kinematic error). With d = r q_m + A sin(2 q_m + phi) - q_l,
+ * g = dd/dq_m = r + 2 A cos(2 q_m + phi), tau_s = K_s (d + hardening d^3) + z:
  *     J_m v_m' = T - g tau_s - F_m          J_l v_l' = tau_s - F_l
- * A slipping body feels F = dir f (1 + a dir)(1 + s exp(-(v/vs)^2)) + b v; a stuck body stays stuck while its net
- * torque N lies in [-f (1 - a)(1 + s), f (1 + a)(1 + s)]. The Dahl element z' = sigma dd (1 - sgn(dd) z/H) is
- * solved exactly on each branch of constant sgn(dd): z is a function of d (anchored where the branch began).
+ * A slipping body feels F = dir f (1 + a dir)(1 + s exp(-(v/vs)^2)) + b (1 + a_v dir) v; a stuck body stays stuck
+ * while its net torque N lies in [-f (1 - a)(1 + s), f (1 + a)(1 + s)]. The Dahl element
+ * z' = sigma dd (1 - sgn(dd) z/H) is solved exactly on each branch of constant sgn(dd): z is a function of d
+ * (anchored where the branch began).
  * Each body's stick/slip mode and slip direction and the hysteresis branch are MODES held fixed inside a substep,
  * where the right-hand side is then smooth: classical RK4 with fixed substeps (400 per period of the stiffest
  * oscillation, at most a tenth of each viscous or Stribeck time constant; shortened further while a fast transient
  * is under way: a body in its Stribeck range, an unsaturated hysteresis branch), the two works as quadratures.
- * An event inside a substep (a slipping body's velocity reaching 0, a stuck body's N leaving its band, dd changing
- * sign) is located by bisection to the last bit on the substep fraction, each trial being one RK4 step from the
- * substep start; that very state is committed and the modes are re-decided from it (no Zeno loops).
+ * An event inside a substep (a slipping body's velocity reaching 0 - with Coulomb friction or an asymmetric viscous
+ * term -, a stuck body's N leaving its band, dd changing sign) is located by bisection to the last bit on the
+ * substep fraction, each trial being one RK4 step from the substep start; that very state is committed and the
+ * modes are re-decided from it (no Zeno loops).
  */
 #include "model.h"
 
@@ -240,7 +242,8 @@ static void settle_modes(HDModel *m) {
 /* Any effect on selects the general propagator; all off keeps the closed-form path, bit for bit. */
 static int effects_on(const HDModel *m) {
     return m->b_m != 0.0 || m->b_l != 0.0 || m->stribeck_ratio != 0.0 || m->friction_asymmetry != 0.0
-        || m->hardening != 0.0 || m->hysteresis_torque != 0.0 || m->kinematic_error != 0.0;
+        || m->hardening != 0.0 || m->hysteresis_torque != 0.0 || m->kinematic_error != 0.0
+        || m->viscous_asymmetry != 0.0;
 }
 
 /* The state the general propagator integrates: positions, velocities and the two work quadratures. */
@@ -288,11 +291,20 @@ static double static_level(const HDModel *m, double f, int32_t dir) {
     return f * (1.0 + m->friction_asymmetry * dir) * (1.0 + m->stribeck_ratio);
 }
 
-/* Friction of a slipping body. At v = 0 it is dir * static_level bit for bit (exp(0) = 1, b 0 = 0), so a body that
- * just broke away (|N| beyond its level as doubles) accelerates in its slip direction exactly. */
+/* Friction of a slipping body; the viscous coefficient is b (1 + a_v dir). At v = 0 it is dir * static_level bit for
+ * bit (exp(0) = 1, b 0 = 0), so a body that just broke away (|N| beyond its level as doubles) accelerates in its slip
+ * direction exactly. */
 static double slip_friction(const HDModel *m, double f, double b, double vs, int32_t dir, double v) {
     double x = v / vs;
-    return dir * (f * (1.0 + m->friction_asymmetry * dir) * (1.0 + m->stribeck_ratio * exp(-x * x))) + b * v;
+    return dir * (f * (1.0 + m->friction_asymmetry * dir) * (1.0 + m->stribeck_ratio * exp(-x * x)))
+         + b * (1.0 + m->viscous_asymmetry * dir) * v;
+}
+
+/* Is a slipping body's velocity zero an event (Karnopp re-decision: stick, or a new slip direction)? Yes when its
+ * friction depends on the slip direction: Coulomb friction f > 0, or an asymmetric viscous term b (1 + a_v dir) (so
+ * that dir is the sign of v even for a body without Coulomb friction). Otherwise the body never sticks. */
+static int velocity_switches(const HDModel *m, double f, double b) {
+    return f > 0.0 || (b != 0.0 && m->viscous_asymmetry != 0.0);
 }
 
 static FxState fx_state(const HDModel *m) {
@@ -341,11 +353,11 @@ static void fx_flip_hysteresis(HDModel *m, const FxSpring *s) {
 static void fx_settle(HDModel *m) {
     FxState y = fx_state(m);
     FxSpring s = fx_spring(m, y.q_m, y.q_l);
-    if (m->motor_stuck || m->v_m == 0.0 || (m->f_m > 0.0 && -m->motor_dir * m->v_m >= 0.0)) {
+    if (m->motor_stuck || m->v_m == 0.0 || (velocity_switches(m, m->f_m, m->b_m) && -m->motor_dir * m->v_m >= 0.0)) {
         m->v_m = 0.0;
         fx_decide(m, m->motor_torque - s.g * s.tau, m->f_m, &m->motor_stuck, &m->motor_dir);
     }
-    if (m->load_stuck || m->v_l == 0.0 || (m->f_l > 0.0 && -m->load_dir * m->v_l >= 0.0)) {
+    if (m->load_stuck || m->v_l == 0.0 || (velocity_switches(m, m->f_l, m->b_l) && -m->load_dir * m->v_l >= 0.0)) {
         m->v_l = 0.0;
         fx_decide(m, s.tau, m->f_l, &m->load_stuck, &m->load_dir);
     }
@@ -692,11 +704,12 @@ static int fx_fires(const HDModel *m, const FxEvent *e, const FxState *y) {
     return 0;
 }
 
-/* The events that can end the current substep. A body without friction never sticks: its velocity is no event. */
+/* The events that can end the current substep. A body whose friction does not depend on its slip direction (no
+ * Coulomb friction, symmetric viscous term) never sticks: its velocity is no event. */
 static int fx_events(const HDModel *m, FxEvent *ev) {
     int n = 0;
-    if (!m->motor_stuck && m->f_m > 0.0) ev[n].kind = FX_MOTOR_VELOCITY, ev[n++].sign = 0;
-    if (!m->load_stuck && m->f_l > 0.0) ev[n].kind = FX_LOAD_VELOCITY, ev[n++].sign = 0;
+    if (!m->motor_stuck && velocity_switches(m, m->f_m, m->b_m)) ev[n].kind = FX_MOTOR_VELOCITY, ev[n++].sign = 0;
+    if (!m->load_stuck && velocity_switches(m, m->f_l, m->b_l)) ev[n].kind = FX_LOAD_VELOCITY, ev[n++].sign = 0;
     for (int32_t sign = -1; sign <= 1; sign += 2) {
         if (m->motor_stuck) ev[n].kind = FX_MOTOR_BREAK, ev[n++].sign = sign;
         if (m->load_stuck) ev[n].kind = FX_LOAD_BREAK, ev[n++].sign = sign;
@@ -719,16 +732,17 @@ static double fx_bisect(const HDModel *m, const FxState *y0, double len, const F
 }
 
 /* Substep length for a communication step h: 400 per period of the stiffest oscillation (tangent stiffness at the
- * step start, largest gear factor r + 2A), at most a tenth of each viscous time constant. (Stribeck friction is
- * stiff only while a body is slow: fx_local_substep limits the substeps then.) */
+ * step start, largest gear factor r + 2A), at most a tenth of each viscous time constant J / (b (1 + |a_v|)).
+ * (Stribeck friction is stiff only while a body is slow: fx_local_substep limits the substeps then.) */
 static HDStatus fx_substep(const HDModel *m, double h, double *h_sub, char *err, size_t errlen) {
     FxSpring s = fx_spring(m, m->q_m, m->q_l);
     double K = m->K_s * (1.0 + 3.0 * m->hardening * s.d * s.d)
              + (m->hysteresis_torque > 0.0 ? m->hysteresis_stiffness : 0.0);
     double G = m->r + 2.0 * m->kinematic_error;
     double h_max = 2.0 * HD_PI / sqrt(K * (G * G / m->J_m + 1.0 / m->J_l)) / HD_SUBSTEPS_PER_PERIOD;
-    if (m->b_m > 0.0) h_max = fmin(h_max, 0.1 * m->J_m / m->b_m);
-    if (m->b_l > 0.0) h_max = fmin(h_max, 0.1 * m->J_l / m->b_l);
+    double va = 1.0 + fabs(m->viscous_asymmetry); /* the larger of the two directions' viscous coefficients */
+    if (m->b_m > 0.0) h_max = fmin(h_max, 0.1 * m->J_m / (m->b_m * va));
+    if (m->b_l > 0.0) h_max = fmin(h_max, 0.1 * m->J_l / (m->b_l * va));
     double n = ceil(h / h_max);
     if (!(n <= HD_MAX_SUBSTEPS_PER_STEP)) {
         snprintf(err, errlen, "a step of %g s needs %g RK4 substeps of at most %g s (stiff effects); use shorter "

@@ -9,9 +9,9 @@
  * form and every event (a slipping body's velocity reaching zero, a stuck body's net torque leaving its static
  * band) is located as the first root of a known function. See model.c.
  *
- * Optional effects (parameters vr 100+, all off by default): viscous friction b_m, b_l; Stribeck and asymmetric
- * friction; a hardening spring K_s (d + hardening d^3); a Dahl hysteresis element z in parallel with the spring;
- * a kinematic error d = r q_m + A sin(2 q_m + phi) - q_l. With any of them on, the same Karnopp stick-slip is
+ * Optional effects (parameters vr 100+, all off by default): viscous friction b_m, b_l (direction-dependent
+ * with viscous_asymmetry); Stribeck and asymmetric friction; a hardening spring K_s (d + hardening d^3); a Dahl
+ * hysteresis element z in parallel with the spring; a kinematic error d = r q_m + A sin(2 q_m + phi) - q_l. With any of them on, the same Karnopp stick-slip is
  * propagated by a fixed-substep RK4 with the friction / hysteresis modes held inside each substep and events
  * located by bisection (model.c, "general propagator").
  *
@@ -35,7 +35,7 @@ typedef struct {
     double q_m_start, q_l_start, v_m_start, v_l_start;
     /* Optional effects (0 = off, except the shape parameters stribeck_velocity, hysteresis_stiffness, phase). */
     double b_m, b_l, stribeck_ratio, stribeck_velocity, friction_asymmetry, hardening;
-    double hysteresis_torque, hysteresis_stiffness, kinematic_error, kinematic_error_phase;
+    double hysteresis_torque, hysteresis_stiffness, kinematic_error, kinematic_error_phase, viscous_asymmetry;
 
     /* Input: motor torque [N m], held constant over a communication step. */
     double motor_torque;

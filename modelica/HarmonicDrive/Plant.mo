@@ -24,6 +24,7 @@ model Plant "Harmonic-drive plant: two inertias, gear ratio r = q_l/q_m, flexspl
   parameter Real hysteresis_stiffness(unit = "N.m/rad", min = 0.001, max = 1e15) = 1.0e4 "Initial stiffness sigma of the Dahl element";
   parameter Real kinematic_error(unit = "rad", min = 0.0, max = 1.0) = 0.0 "Amplitude A of the transmission error (load side)";
   parameter Real kinematic_error_phase(unit = "rad", min = -10.0, max = 10.0) = 0.0 "Phase phi of the transmission error";
+  parameter Real viscous_asymmetry(unit = "1", min = -0.99, max = 0.99) = 0.0 "Viscous coefficients b (1 + a_v) for positive, b (1 - a_v) for negative motion";
 
   // Initial state
   parameter Real q_m_start(unit = "rad", min = -1e6, max = 1e6) = 0.0 "Initial motor angle";
@@ -94,9 +95,9 @@ equation
 
   // Friction: a stuck body's friction balances its net torque exactly (so its velocity stays exactly zero);
   // a slipping body's friction is its (asymmetric) Coulomb level with the Stribeck rise against the slip
-  // direction, plus viscous friction.
-  motor_friction_torque = if mode_m == 0 then tau_m else mode_m*f_m*(1 + friction_asymmetry*mode_m)*(1 + stribeck_ratio*exp(-(v_m*r/stribeck_velocity)^2)) + b_m*v_m;
-  load_friction_torque = if mode_l == 0 then tau_l else mode_l*f_l*(1 + friction_asymmetry*mode_l)*(1 + stribeck_ratio*exp(-(v_l/stribeck_velocity)^2)) + b_l*v_l;
+  // direction, plus viscous friction (its coefficient b (1 + viscous_asymmetry*mode) depends on the direction too).
+  motor_friction_torque = if mode_m == 0 then tau_m else mode_m*f_m*(1 + friction_asymmetry*mode_m)*(1 + stribeck_ratio*exp(-(v_m*r/stribeck_velocity)^2)) + b_m*(1 + viscous_asymmetry*mode_m)*v_m;
+  load_friction_torque = if mode_l == 0 then tau_l else mode_l*f_l*(1 + friction_asymmetry*mode_l)*(1 + stribeck_ratio*exp(-(v_l/stribeck_velocity)^2)) + b_l*(1 + viscous_asymmetry*mode_l)*v_l;
 
   der(q_m) = v_m;
   der(q_l) = v_l;
@@ -147,14 +148,15 @@ saturated to the Integer (int32) range, input_work = integral of motor_torque v_
 </p>
 <h4>Optional effects (all off by default)</h4>
 <p>
-The same parameters as the FMU (value references 100+): viscous friction <code>b_m</code>, <code>b_l</code>;
+The same parameters as the FMU (value references 100+): viscous friction <code>b_m</code>, <code>b_l</code>,
+direction-dependent as b (1 &plusmn; <code>viscous_asymmetry</code>);
 Stribeck friction (<code>stribeck_ratio</code> s, <code>stribeck_velocity</code> vs, load side, vs/r on the
 motor); asymmetric levels f (1 &plusmn; <code>friction_asymmetry</code>); a hardening spring
 K_s (d + <code>hardening</code> d^3); a Dahl hysteresis element z' = sigma dd (1 - sgn(dd) z/H) in parallel
 with the spring (<code>hysteresis_torque</code> H, <code>hysteresis_stiffness</code> sigma); a kinematic error
 d = r q_m + A sin(2 q_m + phi) - q_l (<code>kinematic_error</code>, <code>kinematic_error_phase</code>).
 Then J_m q_m'' = T - g tau_s - F_m, J_l q_l'' = tau_s - F_l with g = r + 2 A cos(2 q_m + phi),
-tau_s = spring_torque; a slipping body feels F = dir f (1 + a dir)(1 + s exp(-(v/vs)^2)) + b v, a stuck body
+tau_s = spring_torque; a slipping body feels F = dir f (1 + a dir)(1 + s exp(-(v/vs)^2)) + b (1 + a_v dir) v, a stuck body
 stays stuck while -f (1 - a)(1 + s) &lt;= N &lt;= f (1 + a)(1 + s).
 </p>
 <h4>Stick-slip: an explicit state machine</h4>
