@@ -294,6 +294,18 @@ def _refit(log: DriveLog, base: DriveParams, current: _Model, effects: tuple[str
     return _model(log, problem, theta, sigma_l), problem, signature
 
 
+def _without_new(log: DriveLog, base: DriveParams, current: _Model, cand: _Model, stop: int, sigma_l: float,
+                 max_iter: int) -> _Model:
+    """The current model refitted on the training part from the candidate's optimum minus the new effect."""
+    problem = EffectProblem(log, base, current.effects, stop, sigma_l)
+    try:
+        theta = cand.theta[: current.theta.size].copy()
+        theta, _ = _casadi_fit(problem, theta, *problem.bounds(), max_iter)
+        return _model(log, problem, theta, sigma_l)
+    finally:
+        problem.close()
+
+
 def _try_candidate(args: tuple) -> dict[str, Any]:
     """One candidate (a top-level function, so that it can run on a worker)."""
     log, base, current, stop, sigma_l, name, max_iter = args
@@ -490,6 +502,7 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
     say(f"base: load NRMSE {current.metrics['nrmse_load']:.4g}, held-back {current.metrics['heldback_nrmse_load']:.4g}")
 
     remaining = [c for c in names if c in TWO_INERTIA_CANDIDATES]
+    refreshed, reruns = False, 0
     while remaining and len(current.effects) < max_effects:
         from .distributed import run_batch
 
@@ -516,10 +529,29 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
                 notes.append(f"step {len(steps)}: {cand['name']} improves the held-back fit {gain:.3g}x but its "
                              f"magnitude's 95 % interval includes 0 ({effect.magnitude:.3g} {effect.unit}): not named")
                 continue
+            # drop test: refit the current model from the candidate's optimum without the new effect. If that does
+            # as well on the held-back data, the gain came from a better-converged fit, not from the effect.
+            reduced = _without_new(full, base, current, cand["model"], stop, sigma_l, max_iter)
+            drop_gain = reduced.held_cost / max(cand["model"].held_cost, 1e-300)
+            if not _accept(reduced, cand["model"])[0]:
+                notes.append(f"step {len(steps)}: {cand['name']} looked significant ({gain:.3g}x) but the model "
+                             f"without it, refitted from the same point, predicts the held-back data as well "
+                             f"({drop_gain:.3g}x): not named; the better-converged model is kept")
+                say(f"candidate {cand['name']}: fails the drop test ({drop_gain:.3g}x)")
+                if reduced.held_cost < current.held_cost:
+                    current, refreshed = reduced, True
+                break
             best = cand
             break
         steps[-1].candidates = table
         if best is None:
+            if refreshed and reruns < 2:  # compare the candidates again against the better-converged model
+                reruns += 1
+                refreshed = False
+                models[-1] = current
+                steps[-1] = _step(steps[-1].added, current, steps[-1].score, table, resolution_pulses,
+                                  dict(steps[-1].extra, refreshed=True))
+                continue
             break
         named.append(effect)
         winner = best["model"]
