@@ -93,12 +93,18 @@ def _save(fig: Any, path: Path) -> str:
 
 def _markdown(diag: Diagnosis, files: dict[str, str]) -> str:
     steps = diag.to_frame()
-    keep = [c for c in ("added", "nrmse_load", "nrmse_motor", "relative_error_pct", "heldback_nrmse_load",
-                        "heldback_relative_error_pct", "score", "predicted_resolution_um") if c in steps]
+    if "removed" in steps:  # the backward elimination's step lists what it took out
+        steps["removed"] = [", ".join(r) if isinstance(r, list) else "" for r in steps["removed"]]
+    keep = [c for c in ("added", "removed", "nrmse_load", "nrmse_motor", "relative_error_pct", "heldback_nrmse_load",
+                        "heldback_relative_error_pct", "residual_over_noise_load", "score",
+                        "predicted_resolution_um") if c in steps]
     lines = ["# hdrive diagnosis", "",
              f"Base model: **{diag.model}**. The first part of the log trains every model; the rest is held back and "
              "only predicted (the model simulates the whole log). A candidate effect is accepted only when the "
-             "held-back cost falls significantly (see `ident/diagnose.py`).", "",
+             "held-back cost falls significantly and the model without it, refitted, predicts worse; the model with "
+             "it is then identified from scratch; at the end every named effect must survive backward elimination "
+             "(see `ident/diagnose.py`). `residual_over_noise_load`: load residual RMS / load sensor noise (1 = the "
+             "model explains everything but the noise).", "",
              "## The gap after every step", "", _md_table(steps[keep]), "",
              "## Named effects", ""]
     if diag.effects:

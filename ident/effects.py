@@ -152,12 +152,6 @@ class Effect:
     starts: tuple[tuple[float, ...], ...]  # starting points (in x) tried by a refit
 
 
-def _band_speed(p: Any) -> float:
-    """A load speed typical of free ringing: w * f_l / K_s [rad/s]."""
-    w = math.sqrt(p.K_s * (p.r**2 / p.J_m + 1 / p.J_l))
-    return w * max(p.f_l, 1e-3 * p.f_m) / p.K_s
-
-
 def _band_deflection(p: Any) -> float:
     """The spring deflection carried by the motor's breakaway torque: f_m / (r K_s) [rad]."""
     return p.f_m / (p.r * p.K_s)
@@ -173,11 +167,14 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            "load ringing decays exponentially (constant ratio of successive peaks) instead of linearly (Coulomb)",
            ("two-inertia",), lambda p: (0.1 * math.sqrt(p.K_s * p.J_l),),
            lambda v: v["b_l"], "b_l", ((0.1,), (1.0,), (10.0,))),
-    Effect("stribeck", (FitVar("stribeck_ratio", 0.0, 10.0), FitVar("stribeck_velocity", -2.5, 3.0, log=True)),
+    # the Stribeck velocity's scale is the load speed of the motor turning at 1 rad/s, from the drive's data
+    # sheet (r), not from a fitted K*, J_l*, f_l*: a base model that lacks the effect bends those by orders of
+    # magnitude; the range is 1e-6 .. 1 rad/s at the load and the starts are its decades
+    Effect("stribeck", (FitVar("stribeck_ratio", 0.0, 10.0), FitVar("stribeck_velocity", -9.3, 4.7, log=True)),
            "1", "breakaway needs more torque than sliding: overshoot after breakaway, a dip of friction at low speed",
-           ("two-inertia", "rigid"), lambda p: (1.0, _band_speed(p)),
+           ("two-inertia", "rigid"), lambda p: (1.0, p.r * 1.0),
            lambda v: v["stribeck_ratio"], "stribeck_ratio",
-           ((0.3, 0.0), (0.3, 2.0), (0.3, -2.0), (1.0, 0.0))),
+           tuple((ratio, math.log(v)) for ratio in (0.3, 1.0) for v in (1e-3, 1e-2, 1e-1, 1.0))),
     Effect("asymmetric_friction", (FitVar("friction_asymmetry", -0.99, 0.99), FitVar("viscous_asymmetry", -0.99, 0.99)),
            "1", "the residual's sign follows the direction of motion: positive and negative moves end at different "
            "distances", ("two-inertia", "rigid"), lambda p: (1.0, 1.0),

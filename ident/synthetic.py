@@ -53,16 +53,22 @@ def synthetic_log(params: DriveParams, torque: np.ndarray | None = None, *, dura
     if torque is None:
         torque = default_excitation(params, duration_s, rate_hz)
     torque = np.asarray(torque, dtype=float)
-    rng = np.random.default_rng(seed)
     with Plant(params, fmi_version=fmi_version) as plant:
         q_m, q_l = plant.positions(torque, 1.0 / rate_hz)
+    return _measured(params, torque, q_m, q_l, rate_hz, load_noise_m, load_offset_rad, seed, "synthetic")
+
+
+def _measured(params: DriveParams, torque: np.ndarray, q_m: np.ndarray, q_l: np.ndarray, rate_hz: float,
+              load_noise_m: float, load_offset_rad: float, seed: int, source: str) -> DriveLog:
+    """The log a drive's sensors record of the true angles: floor-quantized encoder, noisy offset load sensor."""
+    rng = np.random.default_rng(seed)
     count = params.count_rad
     motor = np.floor(q_m / count) * count
     load = q_l + load_offset_rad + rng.normal(0.0, load_noise_m / params.arm_length, q_l.size)
     applied = np.append(torque, 0.0)  # the torque logged at sample k is the one held after it
     meta = LogMeta(r=params.r, J_m_kgm2=params.J_m, f_m_Nm=params.f_m, arm_length_m=params.arm_length,
                    encoder_counts_per_rev=params.encoder_counts_per_rev, sample_rate_hz=rate_hz)
-    return DriveLog(np.arange(q_m.size) / rate_hz, applied, motor, load, meta, source="synthetic")
+    return DriveLog(np.arange(q_m.size) / rate_hz, applied, motor, load, meta, source=source)
 
 
 def diagnosis_excitation(params: DriveParams, duration_s: float = 10.0, rate_hz: float = 5000.0,
@@ -125,3 +131,37 @@ def hidden_effect_log(case: str, duration_s: float = 6.0, seed: int = 3) -> Driv
     p = DriveParams().with_values(**hidden)
     tau = diagnosis_excitation(p, duration_s, 5000.0, seed=seed)
     return synthetic_log(p, tau, duration_s=duration_s, seed=seed + 2, load_offset_rad=1e-3)
+
+
+# Logs with an effect that is NOT in the library (the workflow must say it cannot explain them, and where): name ->
+# description. "amplifier_lag": the motor receives the logged torque command through the current loop's first-order
+# lag (time constant 0.3 ms, a ~530 Hz bandwidth), which the logs of real drives often hide; a pulse of 0.5-2 ms
+# is smeared out (same impulse, lower peak, later breakaway), slow moves are hardly touched.
+OUT_OF_LIBRARY_CASES: dict[str, str] = {
+    "amplifier_lag": "the motor torque lags the logged command (first order, 0.3 ms)",
+}
+AMPLIFIER_LAG_S = 3e-4
+
+
+def out_of_library_log(case: str, duration_s: float = 4.0, seed: int = 3, substeps: int = 20) -> DriveLog:
+    """A "measured" log of the nominal drive with ``OUT_OF_LIBRARY_CASES[case]`` hidden in it: the plant FMU is
+    driven ``substeps`` times per log sample by the lagged torque (exact first-order response of the held command
+    on the fine grid), then sampled and measured as ``synthetic_log`` does; the log keeps the command."""
+    if case not in OUT_OF_LIBRARY_CASES:
+        raise ValueError(f"unknown case {case!r}; known: {', '.join(OUT_OF_LIBRARY_CASES)}")
+    p = DriveParams()
+    rate = 5000.0
+    command = diagnosis_excitation(p, duration_s, rate, seed=seed)
+    fine = np.repeat(command, substeps)
+    h = 1.0 / (rate * substeps)
+    a = float(np.exp(-h / AMPLIFIER_LAG_S))
+    applied = np.empty_like(fine)
+    y = 0.0
+    for k, u in enumerate(fine):  # the fine step's mean of the exact response, so that the impulse is kept
+        y_next = u + (y - u) * a
+        applied[k] = u + (y - u) * (1 - a) * AMPLIFIER_LAG_S / h
+        y = y_next
+    with Plant(p) as plant:
+        q_m, q_l = plant.positions(applied, h)
+    return _measured(p, command, q_m[::substeps], q_l[::substeps], rate, 2e-9, 1e-3, seed + 2,
+                     f"synthetic ({case})")
