@@ -383,30 +383,28 @@ def _converge(train: DriveLog, full: DriveLog, stop: int, base: DriveParams, win
         return _resimulated(full, base, winner, stop, sigma_l)
     # the first window's grid also tries the new effect's library starting points (its basin can be narrow, e.g.
     # Stribeck's ratio x velocity), the other effects held at the candidate's values
-    new = EFFECTS[winner.effects[-1]]
-    n_new = len(effect_layout(new.name, base))
-    rows = [winner.theta[4:].copy()]
-    for start in new.starts:
-        row = winner.theta[4:].copy()
-        row[row.size - n_new:] = start[:n_new]
-        rows.append(row)
-    problem, theta, _, _, _ = fit_pipeline(train, base, EffectProblem.maker(winner.effects, base), np.array(rows),
+    new = winner.effects[-1]
+    head = winner.theta[4: winner.theta.size - len(effect_layout(new, base))]
+    rows = np.vstack([winner.theta[4:], _start_rows(head, new, base)])
+    problem, theta, _, _, _ = fit_pipeline(train, base, EffectProblem.maker(winner.effects, base), rows,
                                            progress=progress)
     problem.close()
-    problem = EffectProblem(full, base, winner.effects, stop, sigma_l)
-    try:
-        fresh = _model(full, problem, theta, sigma_l)
-    finally:
-        problem.close()
+    fresh = _evaluated(full, base, winner.effects, theta, stop, sigma_l)
     return fresh if fresh.train_cost < winner.train_cost else _resimulated(full, base, winner, stop, sigma_l)
 
 
-def _resimulated(full: DriveLog, base: DriveParams, model: _Model, stop: int, sigma_l: float) -> _Model:
-    problem = EffectProblem(full, base, model.effects, stop, sigma_l)
+def _evaluated(full: DriveLog, base: DriveParams, effects: tuple[str, ...], theta: np.ndarray, stop: int,
+               sigma_l: float) -> _Model:
+    """The model ``effects`` at ``theta``, simulated over the whole log."""
+    problem = EffectProblem(full, base, effects, stop, sigma_l)
     try:
-        return _model(full, problem, model.theta, sigma_l)
+        return _model(full, problem, theta, sigma_l)
     finally:
         problem.close()
+
+
+def _resimulated(full: DriveLog, base: DriveParams, model: _Model, stop: int, sigma_l: float) -> _Model:
+    return _evaluated(full, base, model.effects, model.theta, stop, sigma_l)
 
 
 def _final_magnitudes(full: DriveLog, stop: int, final: _Model, named: list[NamedEffect],
@@ -424,27 +422,37 @@ def _final_magnitudes(full: DriveLog, stop: int, final: _Model, named: list[Name
     for e in named:
         if e.name in final.effects:
             mag, ci = _magnitude(EFFECTS[e.name], final, cov)
-            values = {var.param: float(getattr(final.params, var.param))
-                      for name, var, _ in problem_layout(final.effects, final.scale_base) if name == e.name}
-            e = replace(e, magnitude=mag, ci95=ci, params=values)
+            e = replace(e, magnitude=mag, ci95=ci, params=_effect_values(final, e.name))
         out.append(e)
     return out
 
 
-def _try_candidate(args: tuple) -> dict[str, Any]:
-    """One candidate (a top-level function, so that it can run on a worker)."""
-    log, base, current, stop, sigma_l, name, max_iter = args
+def _candidate(name: str, fit: Any, **extra: Any) -> dict[str, Any]:
+    """Run ``fit() -> (model, signature, cov)`` for candidate ``name`` and package the result; a candidate that
+    cannot be fitted is reported with its error, not fatal."""
     t0 = time.perf_counter()
     try:
-        model, problem, sig = _refit(log, base, current, current.effects + (name,), stop, sigma_l, name, max_iter)
-        cov = _interval_cov(problem, model.theta, log)
-        problem.close()
+        model, sig, cov = fit()
         model.sim = None  # keep the result small; the winner is re-simulated
         return {"name": name, "model": model, "signature": sig, "cov": cov, "error": None,
-                "elapsed_s": time.perf_counter() - t0}
-    except Exception as exc:  # noqa: BLE001 - a candidate that cannot be fitted is reported, not fatal
+                "elapsed_s": time.perf_counter() - t0, **extra}
+    except Exception as exc:  # noqa: BLE001
         return {"name": name, "model": None, "signature": 0.0, "cov": None, "error": f"{type(exc).__name__}: {exc}",
-                "elapsed_s": time.perf_counter() - t0}
+                "elapsed_s": time.perf_counter() - t0, **extra}
+
+
+def _try_candidate(args: tuple) -> dict[str, Any]:
+    """One candidate refitted from the current model (a top-level function, so that it can run on a worker)."""
+    log, base, current, stop, sigma_l, name, max_iter = args
+
+    def fit() -> tuple[_Model, float, np.ndarray]:
+        model, problem, sig = _refit(log, base, current, current.effects + (name,), stop, sigma_l, name, max_iter)
+        try:
+            return model, sig, _interval_cov(problem, model.theta, log)
+        finally:
+            problem.close()
+
+    return _candidate(name, fit)
 
 
 def _interval_cov(problem: EffectProblem, theta: np.ndarray, log: DriveLog) -> np.ndarray:
@@ -488,9 +496,14 @@ def _named(effect: Effect, model: _Model, cov: np.ndarray | None, signature: flo
              else f"signature {100 * signature:.1f} % of the residual")
     evidence = (f"{effect.signature}; {found}, held-back cost falls {gain:.3g}x"
                 + (f", {margin:.2f}x better than {runner_up}" if margin else ""))
-    values = {var.param: float(getattr(model.params, var.param))
-              for name, var, _ in problem_layout(model.effects, model.scale_base) if name == effect.name}
-    return NamedEffect(effect.name, mag, ci, effect.unit, evidence, runner_up, margin, values)
+    return NamedEffect(effect.name, mag, ci, effect.unit, evidence, runner_up, margin,
+                       _effect_values(model, effect.name))
+
+
+def _effect_values(model: _Model, name: str) -> dict[str, float]:
+    """The FMU parameter values of effect ``name``'s unknowns in ``model``."""
+    return {var.param: float(getattr(model.params, var.param))
+            for owner, var, _ in problem_layout(model.effects, model.scale_base) if owner == name}
 
 
 def _select(ok: list[dict[str, Any]], current: _Model, full: DriveLog, base: DriveParams, stop: int, sigma_l: float,
@@ -526,25 +539,26 @@ def _try_fresh_candidate(args: tuple) -> dict[str, Any]:
     the first window's grid trying each of the new effect's library starting points. For logs where the current
     model has bent so far that no refit from it finds the effect (e.g. hidden Stribeck friction)."""
     full, stop, base, current, sigma_l, name = args
-    t0 = time.perf_counter()
     effects = current.effects + (name,)
-    n_new = len(effect_layout(name, base))
-    rows = np.array([np.concatenate([current.theta[4:], start[:n_new]]) for start in EFFECTS[name].starts])
-    try:
+
+    def fit() -> tuple[_Model, float, np.ndarray]:
+        rows = _start_rows(current.theta[4:], name, base)
         problem, theta, _, _, _ = fit_pipeline(_truncate(full, stop), base, EffectProblem.maker(effects, base), rows)
         problem.close()
         problem = EffectProblem(full, base, effects, stop, sigma_l)
         try:
-            model = _model(full, problem, theta, sigma_l)
-            cov = _interval_cov(problem, theta, full)
+            return _model(full, problem, theta, sigma_l), math.nan, _interval_cov(problem, theta, full)
         finally:
             problem.close()
-        model.sim = None
-        return {"name": name, "model": model, "signature": math.nan, "cov": cov, "error": None,
-                "elapsed_s": time.perf_counter() - t0, "from_scratch": True}
-    except Exception as exc:  # noqa: BLE001 - a candidate that cannot be fitted is reported, not fatal
-        return {"name": name, "model": None, "signature": 0.0, "cov": None, "error": f"{type(exc).__name__}: {exc}",
-                "elapsed_s": time.perf_counter() - t0, "from_scratch": True}
+
+    return _candidate(name, fit, from_scratch=True)
+
+
+def _start_rows(head: np.ndarray, name: str, base: DriveParams) -> np.ndarray:
+    """Effect unknowns for ``fit_pipeline``'s first-window grid: ``head`` (the other effects' values) followed by
+    each of effect ``name``'s library starting points."""
+    n_new = len(effect_layout(name, base))
+    return np.array([np.concatenate([head, start[:n_new]]) for start in EFFECTS[name].starts])
 
 
 def _candidate_table(results: list[dict[str, Any]], current: _Model) -> pd.DataFrame:
