@@ -49,7 +49,7 @@ from scipy import stats
 from .diagnosis import Diagnosis, DiagnosisStep, NamedEffect
 from .effects import EFFECTS, Effect
 from .identify import (Z95, IdentificationError, OutputError, _casadi_fit, _covariances, fit_pipeline, identify,
-                       noise_std)
+                       white_noise_std)
 from .io import DriveLog, LogError
 from .params import DriveParams
 from .plant import Plant
@@ -137,8 +137,8 @@ def _make_problem(effects: tuple[str, ...], scale_base: DriveParams, log: DriveL
 
 
 def _at_noise(model: "_Model") -> bool:
-    """Does the model explain the load down to the sensor's noise (``identify.noise_std``, ~1 % accurate), on the
-    training AND the held-back part? Then a perfect model could not lower the load's held-back cost by the required
+    """Does the model explain the load down to the sensor's noise (``identify.white_noise_std``, ~1 % accurate),
+    on the training AND the held-back part? Then a perfect model could not lower the load's held-back cost by the required
     5 %; and the load sensor is ~200x finer than the encoder (nominal drive: 6.7 nrad vs a count of 5 urad at the
     load), so an effect that leaves the load at its noise cannot show in the motor either."""
     m = model.metrics
@@ -669,7 +669,7 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
     steps: list[DiagnosisStep] = []
     named: list[NamedEffect] = []
     notes: list[str] = []
-    sigma_quiet = max(noise_std(full.load_pos_rad[:stop]), 1e-15)
+    sigma_quiet = max(white_noise_std(full.load_pos_rad[:stop]), 1e-15)
 
     if model == "rigid":
         rigid = _rigid_start(full, stop, sigma_quiet)
