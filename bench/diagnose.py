@@ -54,7 +54,10 @@ def run_case(name: str, duration: float, workers: int) -> dict:
            "nrmse_load_steps": [s.nrmse_load for s in d.steps],
            "removed": [n for s in d.steps for n in s.extra.get("removed", [])],
            "shrink": d.steps[0].nrmse_load / d.steps[-1].nrmse_load, "final_residual_over_noise": over_noise,
-           "magnitudes": magnitudes, "unexplained": d.unexplained, "notes": d.notes, "ok": ok}
+           "magnitudes": magnitudes, "unexplained": d.unexplained, "notes": d.notes, "ok": ok,
+           "candidates": [[{k: (None if isinstance(v, float) and v != v else v) for k, v in row.items()
+                            if k in ("candidate", "start", "heldback_gain", "elapsed_s", "error")}
+                           for row in s.candidates.to_dict("records")] for s in d.steps if len(s.candidates)]}
     print(json.dumps(out), flush=True)
     return out
 

@@ -179,7 +179,8 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
     if args.holdout:
         holdout = _read(argparse.Namespace(log=args.holdout, meta=args.meta))
     diag = diagnose(log, model=args.model, holdout=holdout, out_dir=args.out, max_effects=args.max_effects,
-                    resolution_pulses=args.pulses, workers=args.workers, progress=not args.json)
+                    resolution_pulses=args.pulses, workers=args.workers, progress=not args.json,
+                    candidate_budget_s=args.candidate_budget if args.candidate_budget > 0 else None)
     out = diag.to_dict()
     if not args.json:
         print(diag.to_frame().to_string(index=False))
@@ -301,6 +302,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="pulses per impulse experiment for each model's predicted resolution (0: skip; default 200)")
     p.add_argument("--workers", type=int, default=0,
                    help="candidates refitted in parallel on this many local Dask workers (default 0: serial)")
+    p.add_argument("--candidate-budget", type=float, default=300.0, metavar="SECONDS",
+                   help="wall time allowed to each candidate's fit; one not fitted in time is reported as such "
+                        "(default 300; 0: unlimited)")
     p.set_defaults(func=cmd_diagnose)
 
     p = sub.add_parser("paper-effects", help="the friction sweep with and without each effect of the library: which "

@@ -139,3 +139,17 @@ def test_rigid_model_on_a_motor_encoder_only_log() -> None:
         assert lo <= truth[param.name] <= hi, (param.name, param.value, param.ci95_hac)
     assert fit.M.value == pytest.approx(truth["M"], rel=0.02)
     assert (fit.Fc.std_hac / fit.Fc.value > 0.1) == any(w.startswith("Fc is poorly") for w in rigid_warnings(fit))
+
+
+def test_a_fit_leaning_on_a_bound_is_flagged() -> None:
+    """A log the base model cannot fit at all (Stribeck friction: breakaway 1.5x the sliding level) drives the fit
+    onto the edge of the physical range; the result must say so rather than present the edge as an estimate."""
+    from ident.identify import at_bound
+    from ident.synthetic import hidden_effect_log
+
+    log = hidden_effect_log("stribeck", 2.8)  # the training part of the 4 s diagnosis log
+    fit = identify(log)
+    leaning = at_bound(fit.theta)
+    assert leaning, fit.estimates
+    assert all(any(w.startswith(f"{name} = ") and "sits at its bound" in w for w in fit.warnings) for name in leaning)
+    assert at_bound(identify(hidden_effect_log("clean", 2.0)).theta) == []
