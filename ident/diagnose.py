@@ -354,6 +354,17 @@ def _without(log: DriveLog, base: DriveParams, model: _Model, name: str, stop: i
         problem.close()
 
 
+def _polished(log: DriveLog, base: DriveParams, model: _Model, stop: int, sigma_l: float,
+              max_iter: int = 40) -> _Model:
+    """``model`` refitted on the training part from its own optimum until IPOPT stops by itself (or ``max_iter``)."""
+    problem = EffectProblem(log, base, model.effects, stop, sigma_l)
+    try:
+        theta, _ = _casadi_fit(problem, model.theta.copy(), *problem.bounds(), max_iter)
+        return _model(log, problem, theta, sigma_l)
+    finally:
+        problem.close()
+
+
 def _try_without(args: tuple) -> _Model:
     """``_without`` as a top-level function of one tuple, for ``run_batch``."""
     model = _without(*args)
@@ -379,7 +390,9 @@ def _backward(full: DriveLog, base: DriveParams, current: _Model, stop: int, sig
         if needed:
             break
         removed.append((current.effects[i], ratio))
-        current = _resimulated(full, base, reduced[i], stop, sigma_l)
+        # the drop refit stopped after ``max_iter``: converge the kept model (measured: a hardening magnitude
+        # 0.67 % off, its interval missing the truth, after viscous_motor was removed)
+        current = _resimulated(full, base, _polished(full, base, reduced[i], stop, sigma_l), stop, sigma_l)
     return current, removed
 
 

@@ -85,12 +85,7 @@ def test_hidden_hardening_is_named_and_measured():
     assert d.effects[0].runner_up is not None and d.effects[0].margin > 1.5
 
 
-_TWO_EFFECTS_NOTE = ("measured 2026-11-22: both effects named, magnitudes within 0.33 %, but the hardening interval "
-                     "[3.0057e6, 3.0140e6] misses the truth 3e6 (bench/README.md)")
-
-
-_KNOWN = {"viscous_load+hardening": _TWO_EFFECTS_NOTE,
-          "stribeck": "not recovered yet (measured 2026-11-22, bench/README.md): the base model leans on J_l*'s "
+_KNOWN = {"stribeck": "not recovered yet (measured 2026-11-22, bench/README.md): the base model leans on J_l*'s "
                       "bound, every candidate is identified from scratch, and Stribeck's from the library's starts "
                       "does not reach its narrow basin (from a start near the truth it converges to the noise); "
                       "asymmetric friction is named, flagged tentative (residual 1.1e6x the noise), in 39 min"}
