@@ -344,22 +344,17 @@ def _refit(log: DriveLog, base: DriveParams, current: _Model, effects: tuple[str
 def _without(log: DriveLog, base: DriveParams, model: _Model, name: str, stop: int, sigma_l: float,
              max_iter: int) -> _Model:
     """``model`` without the effect ``name``, refitted on the training part from ``model``'s optimum."""
-    effects = tuple(e for e in model.effects if e != name)
     keep = [i for i, (owner, _, _) in enumerate(problem_layout(model.effects, base), start=4) if owner != name]
+    return _fitted_from(log, base, tuple(e for e in model.effects if e != name), model.theta[[0, 1, 2, 3, *keep]],
+                        stop, sigma_l, max_iter)
+
+
+def _fitted_from(log: DriveLog, base: DriveParams, effects: tuple[str, ...], theta0: np.ndarray, stop: int,
+                 sigma_l: float, max_iter: int) -> _Model:
+    """The model ``effects`` refitted on the training part from ``theta0`` (IPOPT, at most ``max_iter``)."""
     problem = EffectProblem(log, base, effects, stop, sigma_l)
     try:
-        theta, _ = _casadi_fit(problem, model.theta[[0, 1, 2, 3, *keep]].copy(), *problem.bounds(), max_iter)
-        return _model(log, problem, theta, sigma_l)
-    finally:
-        problem.close()
-
-
-def _polished(log: DriveLog, base: DriveParams, model: _Model, stop: int, sigma_l: float,
-              max_iter: int = 40) -> _Model:
-    """``model`` refitted on the training part from its own optimum until IPOPT stops by itself (or ``max_iter``)."""
-    problem = EffectProblem(log, base, model.effects, stop, sigma_l)
-    try:
-        theta, _ = _casadi_fit(problem, model.theta.copy(), *problem.bounds(), max_iter)
+        theta, _ = _casadi_fit(problem, np.array(theta0, dtype=float), *problem.bounds(), max_iter)
         return _model(log, problem, theta, sigma_l)
     finally:
         problem.close()
@@ -392,7 +387,7 @@ def _backward(full: DriveLog, base: DriveParams, current: _Model, stop: int, sig
         removed.append((current.effects[i], ratio))
         # the drop refit stopped after ``max_iter``: converge the kept model (measured: a hardening magnitude
         # 0.67 % off, its interval missing the truth, after viscous_motor was removed)
-        current = _resimulated(full, base, _polished(full, base, reduced[i], stop, sigma_l), stop, sigma_l)
+        current = _fitted_from(full, base, reduced[i].effects, reduced[i].theta, stop, sigma_l, 40)
     return current, removed
 
 

@@ -154,8 +154,7 @@ class OutputError:
     def residuals(self, theta: np.ndarray) -> np.ndarray:
         key = np.asarray(theta, dtype=float).tobytes()
         if key not in self._cache:
-            if self.out_of_time():
-                raise TimeBudgetExceeded("the fit ran out of its time budget")
+            self.check_time()
             if len(self._cache) > 64:
                 self._cache.clear()
             q_m, q_l, _ = self.simulate(np.asarray(theta, dtype=float))
@@ -182,8 +181,10 @@ class OutputError:
         """Box bounds of the unknowns."""
         return _bounds()
 
-    def out_of_time(self) -> bool:
-        return self.deadline is not None and time.monotonic() > self.deadline
+    def check_time(self) -> None:
+        """Raise ``TimeBudgetExceeded`` once ``deadline`` has passed."""
+        if self.deadline is not None and time.monotonic() > self.deadline:
+            raise TimeBudgetExceeded("the fit ran out of its time budget")
 
     def close(self) -> None:
         self.plant.close()
@@ -243,12 +244,11 @@ def _casadi_fit(problem: OutputError, theta0: np.ndarray, lower: np.ndarray, upp
                                   "sb": "yes"}})
     try:
         sol = solver(x0=theta0, lbx=lower, ubx=upper)
-    except RuntimeError:  # CasADi wraps an exception raised in a callback; say which one it was
-        if problem.out_of_time():
-            raise TimeBudgetExceeded("the fit ran out of its time budget") from None
+    except RuntimeError:  # CasADi wraps an exception raised in a callback: say so if it was the deadline
+        problem.check_time()
         raise
-    if problem.out_of_time():  # IPOPT took the refused evaluations for failed ones and stopped: not an optimum
-        raise TimeBudgetExceeded("the fit ran out of its time budget")
+    # IPOPT may also take the refused evaluations for failed ones and stop early: that is not an optimum either
+    problem.check_time()
     stats = solver.stats()
     return np.array(sol["x"]).ravel(), {"status": stats["return_status"], "iterations": stats["iter_count"],
                                         "cost": float(sol["f"])}
