@@ -181,6 +181,11 @@ class OutputError:
         """Box bounds of the unknowns."""
         return _bounds()
 
+    def extra_scan(self, theta: np.ndarray) -> list[np.ndarray]:
+        """Steps (whole-length vectors) that ``_scale_scan`` tries jointly on unknowns beyond the base four; the
+        base problem has none."""
+        return []
+
     def check_time(self) -> None:
         """Raise ``TimeBudgetExceeded`` once ``deadline`` has passed."""
         if self.deadline is not None and time.monotonic() > self.deadline:
@@ -431,6 +436,9 @@ def _scale_scan(problem: OutputError, theta: np.ndarray, lo: np.ndarray, hi: np.
     scan([np.array([ln_a + ln_c, ln_a, ln_a, 0.0]) for ln_a in np.log(np.geomspace(1 / span_J, span_J, 13))
           for ln_c in np.log1p(np.linspace(-span_w2, span_w2, 7))])
     scan([np.array([0.0, 0.0, ln_b, 0.0]) for ln_b in np.log(np.geomspace(1 / span_f, span_f, 9))])
+    # further unknowns (an effect's) whose cost is a staircase, e.g. Stribeck's static level deciding which pulse
+    # breaks away: a new window's first such event needs a jump that the gradient cannot make
+    scan(problem.extra_scan(best))
     # the initial deflection (a fraction of the static band) shapes the load's first breakaway; a wrong one is a
     # local minimum that the other parameters cannot compensate
     scan([np.array([0.0, 0.0, 0.0, d - best[3]]) for d in np.linspace(-1.0, 1.0, 21)])
@@ -468,12 +476,11 @@ def identify(log: DriveLog, *, model: str = "two-inertia", progress: bool = Fals
     t0 = time.perf_counter()
     base = DriveParams(J_m=meta.J_m_kgm2, f_m=meta.f_m_Nm, r=meta.r, arm_length=meta.arm_length_m,
                        encoder_counts_per_rev=meta.encoder_counts_per_rev)
-    sigma_quiet = max(noise_std(log.load_pos_rad), 1e-15)
     problem, theta, sigma_l, start, stages = fit_pipeline(log, base, OutputError, np.zeros(0), progress=progress,
                                                           first_window_periods=first_window_periods,
                                                           max_iter=max_iter, stage_iter=stage_iter, growth=growth)
     try:
-        return _result(log, problem, theta, start, stages, sigma_l, sigma_quiet, time.perf_counter() - t0)
+        return _result(log, problem, theta, start, stages, sigma_l, start["sigma_quiet_rad"], time.perf_counter() - t0)
     finally:
         problem.close()
 
@@ -487,7 +494,7 @@ def fit_pipeline(log: DriveLog, base: DriveParams, make: Callable[..., OutputErr
     alternatives that the first window's grid searches too). Returns the whole-log problem
     (open), the optimum, the load residual level, the start and the stages."""
     start = equation_error_start(log, base)
-    sigma_quiet = max(noise_std(log.load_pos_rad), 1e-15)
+    sigma_quiet = start["sigma_quiet_rad"] = max(noise_std(log.load_pos_rad), 1e-15)
     stop = _first_window(log, sigma_quiet, start["f_peak_hz"], first_window_periods)
     theta, sigma_l, stages = _first_stage(log, base, start, stop, sigma_quiet, max_iter, make, extra)
     problem, theta, sigma_l = _continuation(log, base, start, theta, sigma_l, stages, stop, growth, stage_iter,
