@@ -15,6 +15,7 @@ import json
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from ident.diagnose import diagnose
@@ -85,10 +86,9 @@ def test_hidden_hardening_is_named_and_measured():
     assert d.effects[0].runner_up is not None and d.effects[0].margin > 1.5
 
 
-_KNOWN = {"stribeck": "not recovered yet (measured 2026-11-22, bench/README.md): the base model leans on J_l*'s "
-                      "bound, every candidate is identified from scratch, and Stribeck's from the library's starts "
-                      "does not reach its narrow basin (from a start near the truth it converges to the noise); "
-                      "asymmetric friction is named, flagged tentative (residual 1.1e6x the noise), in 39 min"}
+_KNOWN = {"stribeck": "named with the right magnitude (0.4918 for 0.5, shrink 4255x) but the final model does not "
+                      "converge to the noise (residual 969x, flagged tentative; measured 2026-11-22, "
+                      "bench/README.md): the (f_l*, ratio, v_s) valley is narrow and the fit stops beside it"}
 
 
 @pytest.mark.slow
@@ -173,6 +173,81 @@ def test_identify_with_an_effect_from_scratch():
     assert abs(p.b_l - 1.0) < 1e-3
     for name in ("K_star", "J_l_star", "f_l_star"):
         assert abs(getattr(p, name) / getattr(truth, name) - 1) < 1e-3, name
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("ratio,v_s", [(0.7, 5e-5), (0.35, 2e-4), pytest.param(0.5, 1e-4, marks=pytest.mark.xfail(
+    strict=False, reason="measured 2026-11-22 (the matrix's Stribeck log): s 0.489, K* within 1.1 %, but v_s 3.1e-4 "
+                         "(x3.1): the window 1.79 s fits to the noise (s 0.490, v_s 9.5e-5), then the scan of the "
+                         "last window (2.8 s) jumps to another basin")),
+    pytest.param(1.2, 3e-4, marks=pytest.mark.xfail(
+    strict=False, reason="measured 2026-11-22: the first window (1.5 s) fits s 0.87, v_s 8.6e-4 to its noise; the "
+                         "later windows cannot leave that basin (ends at s 0.91, load NRMSE 13 %)"))])
+def test_stribeck_candidate_from_scratch(ratio, v_s):
+    """A Stribeck candidate identified from scratch (what the diagnosis runs when the base model leans on a bound)
+    recovers generating values that are not among the library's starting points: the static/Coulomb ratio within
+    10 %, v_s within a factor 1.5, K*, J_l*, f_l* within 1 %."""
+    from ident.diagnose import EffectProblem, FRESH_STAGE_ITER, _split, _truncate
+    from ident.identify import fit_pipeline, identify
+    from ident.synthetic import diagnosis_excitation, synthetic_log
+
+    truth = DriveParams().with_values(stribeck_ratio=ratio, stribeck_velocity=v_s)
+    log = synthetic_log(truth, diagnosis_excitation(truth, 4.0, 5000.0, seed=3), duration_s=4.0, seed=5,
+                        load_offset_rad=1e-3)
+    train = _truncate(*_split(log, None))
+    base = identify(train).params
+    rows = np.array(EFFECTS["stribeck"].starts)
+    problem, theta, _, _, _ = fit_pipeline(train, base, EffectProblem.maker(("stribeck",), base), rows,
+                                           stage_iter=FRESH_STAGE_ITER)
+    try:
+        p = problem.params(theta)
+    finally:
+        problem.close()
+    assert abs(p.stribeck_ratio / ratio - 1) < 0.1, p.stribeck_ratio
+    assert 1 / 1.5 < p.stribeck_velocity / v_s < 1.5, p.stribeck_velocity
+    for name in ("K_star", "J_l_star", "f_l_star"):
+        assert abs(getattr(p, name) / getattr(truth, name) - 1) < 0.01, name
+
+
+def test_extra_scan_steps_each_effect_jointly():
+    """The continuation's scan of effect unknowns: per effect a product grid (log-variables +-0.55, +-1.1; others
+    +-15 %, +-30 % of their value), the base unknowns untouched; the identifier's own problem has none."""
+    from ident.diagnose import EffectProblem
+    from ident.identify import OutputError
+
+    log = hidden_effect_log("clean", 0.3)
+    with_effects = EffectProblem(log, DriveParams(), ("stribeck", "hardening"), 500, 1e-8)
+    plain = OutputError(log, DriveParams(), 500, 1e-8)
+    try:
+        theta = np.array([13.8, 7.8, -2.3, 0.1, 0.5, -4.6, 0.2])
+        steps = np.array(with_effects.extra_scan(theta))
+        assert plain.extra_scan(theta[:4]) == []
+    finally:
+        with_effects.close()
+        plain.close()
+    assert steps.shape == (5 * 5 - 1 + 4, 7) and not steps[:, :4].any()
+    stribeck, hardening = steps[:24], steps[24:]
+    assert not stribeck[:, 6].any() and not hardening[:, 4:6].any()
+    assert sorted(set(np.round(stribeck[:, 5], 6))) == [-1.1, -0.55, 0.0, 0.55, 1.1]
+    assert sorted(set(np.round(stribeck[:, 4], 6))) == [-0.15, -0.075, 0.0, 0.075, 0.15]
+    assert sorted(np.round(hardening[:, 6], 6)) == [-0.06, -0.03, 0.03, 0.06]
+
+
+def test_a_refreshed_step_reports_its_new_models_metrics():
+    """A step re-recorded after a better-converged model replaced its model passes its old extras along; the
+    metrics must be the new model's (a stale residual/noise of 233,115 was reported beside an NRMSE of 1.4e-4)."""
+    from ident.diagnose import EffectProblem, _model, _step
+
+    log = hidden_effect_log("clean", 0.5)
+    problem = EffectProblem(log, DriveParams(), (), 1500, 6.7e-9)
+    try:
+        model = _model(log, problem, np.array([math.log(1e6), math.log(2500.0), math.log(0.1), 0.0]), 6.7e-9)
+    finally:
+        problem.close()
+    step = _step(None, model, None, pd.DataFrame(), 0, {"residual_over_noise_load": 233115.0, "refreshed": True})
+    m = model.metrics
+    assert step.extra["refreshed"] and step.extra["residual_over_noise_load"] == m["residual_over_noise_load"]
+    assert math.isclose(m["residual_over_noise_load"] * 6.7e-9 / step.nrmse_load, np.std(log.load_pos_rad))
 
 
 def test_candidates_out_of_time_are_reported_not_named():
