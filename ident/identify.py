@@ -241,9 +241,13 @@ def _casadi_fit(problem: OutputError, theta0: np.ndarray, lower: np.ndarray, upp
                        {"hess_lag": hess, "print_time": False,
                         # The exact model's cost has micro-steps where a marginal stick/slip decision flips (a
                         # 1e-6 relative change of a parameter can reorder one event): stop once the objective no
-                        # longer changes rather than insisting on a gradient below the finite-difference noise.
+                        # longer changes rather than insisting on a gradient below the finite-difference noise:
+                        # three iterations in a row that change it by < 1e-8 (relative) end the fit, whatever the
+                        # optimality error (measured on a 10 s log: the last stage sat at its optimum from iteration
+                        # 22 to 40, its line search stuck at step 1e-11 on a kink, scaled dual infeasibility 3.6e-4;
+                        # a from-scratch fit with an effect took 97 s, now 34 s, same optimum to 5e-9)
                         "ipopt": {"print_level": 0, "max_iter": max_iter, "tol": 1e-10, "mu_init": 1e-6,
-                                  "acceptable_tol": 1e-4, "acceptable_obj_change_tol": 1e-8, "acceptable_iter": 3,
+                                  "acceptable_tol": 1e19, "acceptable_obj_change_tol": 1e-8, "acceptable_iter": 3,
                                   # backtrack fast: a failed step on a kink is not worth 40 halvings
                                   "alpha_red_factor": 0.1, "max_cpu_time": max_cpu_time,
                                   "sb": "yes"}})
