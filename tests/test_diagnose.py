@@ -61,7 +61,18 @@ def check_case(case: str, duration: float, stop_at_noise: bool = True) -> None:
         truth = truth_of(case, e.name)
         assert abs(e.magnitude - truth) <= 0.10 * truth, (e.name, e.magnitude, truth)
         assert e.ci95[0] <= truth <= e.ci95[1] or abs(e.magnitude - truth) <= 1e-3 * truth, (e.name, e.ci95)
-    assert d.unexplained == [] and d.steps[-1].extra["residual_over_noise_load"] < 1.5
+    converged = d.unexplained == [] and d.steps[-1].extra["residual_over_noise_load"] < 1.5
+    if not converged and case in _KNOWN:  # the issue's must-holds above passed; the model does not reproduce the log,
+        assert d.unexplained and any("tentative" in n for n in d.notes)  # and the report must say so (item 5)
+        pytest.xfail(_KNOWN[case])
+    assert converged, (d.unexplained, d.steps[-1].extra["residual_over_noise_load"])
+
+
+# cases where the issue's must-holds (name, shrink >= 5x, magnitude within 10 %) are met but the final model is not
+# converged down to the noise: the test asserts the must-holds, then xfails on the stricter convergence check
+_KNOWN = {"stribeck": "named with the right magnitude (0.4918 for 0.5, shrink 4255x) but the final model does not "
+                      "converge to the noise (residual 969x, flagged tentative; measured 2026-11-22, "
+                      "bench/README.md): the (f_l*, ratio, v_s) valley is narrow and the fit stops beside it"}
 
 
 def test_clean_log_names_nothing():
@@ -86,14 +97,8 @@ def test_hidden_hardening_is_named_and_measured():
     assert d.effects[0].runner_up is not None and d.effects[0].margin > 1.5
 
 
-_KNOWN = {"stribeck": "named with the right magnitude (0.4918 for 0.5, shrink 4255x) but the final model does not "
-                      "converge to the noise (residual 969x, flagged tentative; measured 2026-11-22, "
-                      "bench/README.md): the (f_l*, ratio, v_s) valley is narrow and the fit stops beside it"}
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.xfail(reason=_KNOWN[c], strict=False))
-                                  if c in _KNOWN else c for c in HIDDEN_EFFECT_CASES])
+@pytest.mark.parametrize("case", list(HIDDEN_EFFECT_CASES))
 def test_hidden_effect_matrix(case):
     check_case(case, 4.0)
 
@@ -176,13 +181,10 @@ def test_identify_with_an_effect_from_scratch():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("ratio,v_s", [(0.7, 5e-5), (0.35, 2e-4), pytest.param(0.5, 1e-4, marks=pytest.mark.xfail(
-    strict=False, reason="measured 2026-11-22 (the matrix's Stribeck log): s 0.489, K* within 1.1 %, but v_s 3.1e-4 "
-                         "(x3.1): the window 1.79 s fits to the noise (s 0.490, v_s 9.5e-5), then the scan of the "
-                         "last window (2.8 s) jumps to another basin")),
-    pytest.param(1.2, 3e-4, marks=pytest.mark.xfail(
-    strict=False, reason="measured 2026-11-22: the first window (1.5 s) fits s 0.87, v_s 8.6e-4 to its noise; the "
-                         "later windows cannot leave that basin (ends at s 0.91, load NRMSE 13 %)"))])
+@pytest.mark.parametrize("ratio,v_s", [(0.7, 5e-5), (0.35, 2e-4), (0.5, 1e-4), pytest.param(1.2, 3e-4, marks=(
+    pytest.mark.xfail(strict=False, reason="measured 2026-11-22 (still failing 2026-11-23): the first window (1.5 s) "
+                      "fits s 0.87, v_s 8.6e-4 to its noise; the later windows cannot leave that basin (ends at "
+                      "s 0.91, load NRMSE 13 %)")))])
 def test_stribeck_candidate_from_scratch(ratio, v_s):
     """A Stribeck candidate identified from scratch (what the diagnosis runs when the base model leans on a bound)
     recovers generating values that are not among the library's starting points: the static/Coulomb ratio within
