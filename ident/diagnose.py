@@ -316,7 +316,7 @@ def _scan(problem: EffectProblem, theta: np.ndarray, new_slice: slice | None, d0
                 if m != 1.0:
                     cand[new_slice.start] = theta[new_slice.start] * m
                 cand = np.clip(cand, lo, hi)
-                scored.append((float(np.sum(problem.residuals(cand) ** 2)), len(scored), cand))
+                scored.append((problem.cost(cand), len(scored), cand))
     problem._cache.clear()
     scored.sort(key=lambda c: (c[0], c[1]))
     return [c[2] for c in scored[:keep]]
@@ -343,7 +343,7 @@ def _refit(log: DriveLog, base: DriveParams, current: _Model, effects: tuple[str
     if new is not None:
         heads = [np.clip(np.concatenate([current.theta, x[:n_new]]), lo, hi) for x in EFFECTS[new].starts]
     # the best of the new effect's starting points, then the initial deflection x friction x magnitude grid around it
-    head = min(heads, key=lambda th: float(np.sum(problem.residuals(th) ** 2)))
+    head = min(heads, key=problem.cost)
     firsts = _scan(problem, head, new_slice, np.linspace(-1.0, 1.0, 21), (0.97, 1.0, 1.03), 2)
     signature = _signature(problem, firsts[0], n_new) if new else 0.0
     fits = [_casadi_fit(problem, th, lo, hi, max_iter, max_cpu_time / 6) for th in firsts]
@@ -627,7 +627,7 @@ def _slowest_first(names: list[str], log: DriveLog, base: DriveParams, current: 
             theta = np.clip(np.concatenate([current.theta, EFFECTS[name].starts[0][:len(effect_layout(name, base))]]),
                             lo, hi)
             t0 = time.perf_counter()
-            problem.residuals(theta)
+            problem.cost(theta)
             cost[name] = time.perf_counter() - t0
         finally:
             problem.close()

@@ -35,7 +35,7 @@ from scipy.signal import savgol_filter
 
 from .io import DriveLog, LogError
 from .params import DriveParams
-from .plant import Plant
+from .plant import Plant, PlantError
 
 NAMES = ("K_star", "J_l_star", "f_l_star")
 BOUNDS = {"K_star": (1e3, 1e9), "J_l_star": (10.0, 1e6), "f_l_star": (1e-4, 100.0)}
@@ -161,6 +161,15 @@ class OutputError:
             self.evaluations += 1
             self._cache[key] = np.concatenate([(q_l - self.y_l) / self.sigma_l, (q_m - self.y_m) / self.sigma_m])
         return self._cache[key]
+
+    def cost(self, theta: np.ndarray) -> float:
+        """Sum of squared residuals, for grids and scans: inf where the FMU cannot simulate ``theta`` (a grid corner
+        can make the state overflow; measured: a hardening grid point in a from-scratch candidate). Inside IPOPT
+        such a failure is an evaluation error, and the line search steps back."""
+        try:
+            return float(np.sum(self.residuals(theta) ** 2))
+        except PlantError:
+            return math.inf
 
     def jacobian(self, theta: np.ndarray) -> np.ndarray:
         """Central differences through the FMU. A long log pins the parameters down to ~1e-7 (the ringing's phase
@@ -424,14 +433,14 @@ def _scale_scan(problem: OutputError, theta: np.ndarray, lo: np.ndarray, hi: np.
     span_f = max(1.05, 2.0 ** (0.5 ** (stage - 1)))
     periods = max(1.0, f_peak_hz * problem.stop / problem.log.meta.sample_rate_hz)
     span_w2 = 2.0 / (3.0 * periods)  # relative span of w^2 = 2 x relative span of w
-    best, best_cost = theta, float(np.sum(problem.residuals(theta) ** 2))
+    best, best_cost = theta, problem.cost(theta)
 
     def scan(steps: list[np.ndarray]) -> None:
         nonlocal best, best_cost
         base = best
         for step in steps:
             cand = np.clip(base + np.pad(step, (0, base.size - step.size)), lo, hi)
-            cost = float(np.sum(problem.residuals(cand) ** 2))
+            cost = problem.cost(cand)
             if cost < best_cost:
                 best, best_cost = cand, cost
         problem._cache.clear()
@@ -524,7 +533,7 @@ def _first_stage(log: DriveLog, base: DriveParams, start: dict[str, float], stop
                     for wm in ((0.97, 1.0, 1.03) if len(extras) == 1 else (1.0,)):
                         th = np.clip(np.concatenate([_theta(base, J, start["w_l2"] * wm,
                                                             start["f_l_over_J_l"] * fm), row]), lo, hi)
-                        grid.append((float(np.sum(first.residuals(th) ** 2)), tuple(th)))
+                        grid.append((first.cost(th), tuple(th)))
                         first._cache.clear()
         grid.sort()
         start.update(zip(NAMES, map(float, np.exp(np.array(grid[0][1][:3])))))
