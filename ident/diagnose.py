@@ -100,8 +100,9 @@ class EffectProblem(OutputError):
         self.deadline = deadline
         self.effects = effects
         self.fixed = dict(fixed or {})
-        self.layout = [(var, scale) for _, var, scale in problem_layout(effects, base)]
-        self.owners = [name for name, _, _ in problem_layout(effects, base)]
+        layout = problem_layout(effects, base)
+        self.layout = [(var, scale) for _, var, scale in layout]
+        self.owners = [name for name, _, _ in layout]
 
     @classmethod
     def maker(cls, effects: tuple[str, ...], scale_base: DriveParams, deadline: float | None = None) -> Any:
@@ -341,7 +342,7 @@ def _refit(log: DriveLog, base: DriveParams, current: _Model, effects: tuple[str
     new_slice = slice(len(current.theta), len(current.theta) + n_new) if new else None
     heads = [current.theta]
     if new is not None:
-        heads = [np.clip(np.concatenate([current.theta, x[:n_new]]), lo, hi) for x in EFFECTS[new].starts]
+        heads = _with_starts(current.theta, new, base, lo, hi)
     # the best of the new effect's starting points, then the initial deflection x friction x magnitude grid around it
     head = min(heads, key=problem.cost)
     firsts = _scan(problem, head, new_slice, np.linspace(-1.0, 1.0, 21), (0.97, 1.0, 1.03), 2)
@@ -605,6 +606,12 @@ def _try_fresh_candidate(args: tuple) -> dict[str, Any]:
     return _candidate(name, fit, budget_s, from_scratch=True)
 
 
+def _with_starts(theta: np.ndarray, name: str, base: DriveParams, lo: np.ndarray, hi: np.ndarray) -> list[np.ndarray]:
+    """``theta`` extended by each of effect ``name``'s library starting points, inside the bounds."""
+    n_new = len(effect_layout(name, base))
+    return [np.clip(np.concatenate([theta, start[:n_new]]), lo, hi) for start in EFFECTS[name].starts]
+
+
 def _start_rows(head: np.ndarray, name: str, base: DriveParams) -> np.ndarray:
     """Effect unknowns for ``fit_pipeline``'s first-window grid: ``head`` (the other effects' values) followed by
     each of effect ``name``'s library starting points."""
@@ -623,9 +630,7 @@ def _slowest_first(names: list[str], log: DriveLog, base: DriveParams, current: 
     for name in names:
         problem = EffectProblem(log, base, current.effects + (name,), window, sigma_l)
         try:
-            lo, hi = problem.bounds()
-            theta = np.clip(np.concatenate([current.theta, EFFECTS[name].starts[0][:len(effect_layout(name, base))]]),
-                            lo, hi)
+            theta = _with_starts(current.theta, name, base, *problem.bounds())[0]
             t0 = time.perf_counter()
             problem.cost(theta)
             cost[name] = time.perf_counter() - t0
@@ -790,6 +795,7 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
         from .distributed import run_batch
 
         leaning = at_bound(current.theta)
+        order = _slowest_first(remaining, full, base, current, stop, sigma_l)
         table, ok, best, reduced = pd.DataFrame(), [], None, None
         if leaning and search_from_scratch:  # a refit from a point on the box's edge would start in the wrong basin
             notes.append(f"step {len(steps)}: the current model leans on the bound of {', '.join(leaning)}: it cannot "
@@ -797,7 +803,6 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
                          "identified from scratch")
             say(notes[-1])
         else:
-            order = _slowest_first(remaining, full, base, current, stop, sigma_l)
             tasks = [(full, base, current, stop, sigma_l, c, max_iter, candidate_budget_s) for c in order]
             results = run_batch(_try_candidate, tasks, workers=workers, progress=progress,
                                 desc=f"candidates (step {len(steps)})")
@@ -809,8 +814,7 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
             say(("" if leaning else "no candidate is significant when refitted from the current model; ")
                 + "identifying the model with each candidate from scratch ...")
             fresh = run_batch(_try_fresh_candidate,
-                              [(full, stop, base, current, sigma_l, c, candidate_budget_s)
-                               for c in _slowest_first(remaining, full, base, current, stop, sigma_l)],
+                              [(full, stop, base, current, sigma_l, c, candidate_budget_s) for c in order],
                               workers=workers, progress=progress, desc=f"candidates from scratch (step {len(steps)})")
             table = pd.concat([table, _candidate_table(fresh, current).assign(start="from scratch")],
                               ignore_index=True)
