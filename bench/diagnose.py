@@ -2,7 +2,7 @@
 
 For each effect of the library, a "measured" log is simulated by the FMU with that effect hidden at a realistic
 magnitude (encoder quantization, 2 nm load noise, a seeded random excitation unlike the identifier's default),
-and ``ident.diagnose`` runs from the base model. Also: a clean log (must name nothing), two effects together,
+and ``ident.diagnosis.engine`` runs from the base model. Also: a clean log (must name nothing), two effects together,
 flexibility from the rigid model, and an effect outside the library (``OUT_OF_LIBRARY_CASES``: must name nothing
 and say where the residual sits). Prints and saves bench/results/diagnose.json.
 
@@ -19,11 +19,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from ident.diagnose import diagnose  # noqa: E402
-from ident.params import DriveParams  # noqa: E402
-from ident.effects import EFFECTS  # noqa: E402
-from ident.synthetic import (HIDDEN_EFFECT_CASES, OUT_OF_LIBRARY_CASES, hidden_effect_log,  # noqa: E402
-                             out_of_library_log)
+from ident.diagnosis.engine import diagnose  # noqa: E402
+from ident.fitting.synthetic import HIDDEN_EFFECT_CASES, OUT_OF_LIBRARY_CASES, hidden_effect_log, out_of_library_log  # noqa: E402
+from ident.model.effects import EFFECTS  # noqa: E402
+from ident.model.params import DriveParams  # noqa: E402
 
 CASES = HIDDEN_EFFECT_CASES
 

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from ident import DriveParams
-from ident.identify import NAMES, identify
-from ident.synthetic import synthetic_log
+from ident.fitting.identify import NAMES, identify
+from ident.fitting.synthetic import synthetic_log
 
 
 def one(p: DriveParams, seed: int) -> dict:
@@ -56,7 +56,7 @@ def main(n_random: int = 20, n_noise: int = 10) -> dict:
                   "cramer_rao_rel": float(np.mean([r[k]["cramer_rao_rel"] for r in noise]))} for k in NAMES}
     emps = None
     try:
-        from ident.emps import find_emps_data, identify_rigid, load_emps
+        from ident.studies.emps import find_emps_data, identify_rigid, load_emps
 
         data = find_emps_data()
         if data is not None:

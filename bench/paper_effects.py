@@ -1,4 +1,4 @@
-"""Benchmark of the paper-effects study (ident.paper_effects; target: the whole write_paper_effects run with its
+"""Benchmark of the paper-effects study (ident.studies.paper_effects; target: the whole write_paper_effects run with its
 defaults in at most ~10 minutes on 2 cores).
 
 - one impulse resolution (threshold search + N = 300 experiment) per effect case, serially in one process, at
@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 from ident import DriveParams, impulse_resolution
-from ident.paper_effects import EFFECT_CASES, write_paper_effects
+from ident.studies.paper_effects import EFFECT_CASES, write_paper_effects
 
 
 def main(quick: bool = False) -> dict:

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from ident import DriveParams, impulse_resolution, linear_resolution
-from ident.resolution import friction_sweep
+from ident.protocols.sweep import friction_sweep
 
 
 def timed(fn):

@@ -6,9 +6,9 @@ import json
 import sys
 from typing import Sequence
 
-from .controllers import SettleError
-from .params import DriveParams, ParameterError, parse_assignments
-from .resolution import NoConsistentStep, ThresholdNotFound
+from .model.params import DriveParams, ParameterError, parse_assignments
+from .protocols.controllers import SettleError
+from .protocols.resolution import NoConsistentStep, ThresholdNotFound
 
 
 def _params_from(args: argparse.Namespace) -> DriveParams:
@@ -28,7 +28,7 @@ def cmd_build_fmu(args: argparse.Namespace) -> dict:
 
 
 def cmd_demo(args: argparse.Namespace) -> dict:
-    from .demo import write_demo
+    from .studies.demo import write_demo
 
     summary = write_demo(args.out, params=_params_from(args), amplitude_star=args.amplitude, pulses=args.pulses,
                          progress=not args.json)
@@ -46,7 +46,7 @@ def _um(x) -> float | list[float]:
 
 
 def cmd_resolution(args: argparse.Namespace) -> dict:
-    from .resolution import impulse_resolution, linear_resolution
+    from .protocols.resolution import impulse_resolution, linear_resolution
 
     params = _params_from(args)
     if args.controller == "impulse":
@@ -76,7 +76,7 @@ def cmd_resolution(args: argparse.Namespace) -> dict:
 def cmd_sweep(args: argparse.Namespace) -> dict:
     from pathlib import Path
 
-    from .resolution import friction_sweep
+    from .protocols.sweep import friction_sweep
 
     sweep = friction_sweep(_params_from(args), args.levels, args.pulses, scheduler=args.scheduler,
                            workers=args.workers, progress=not args.json)
@@ -95,7 +95,7 @@ def cmd_sweep(args: argparse.Namespace) -> dict:
 
 
 def cmd_study(args: argparse.Namespace) -> dict:
-    from .report import write_study
+    from .studies.paper import write_study
 
     study, report = write_study(args.out, _params_from(args), n_pulses=args.pulses, n_steps=args.steps,
                                 levels=args.levels, scheduler=args.scheduler, workers=args.workers,
@@ -110,22 +110,22 @@ def cmd_study(args: argparse.Namespace) -> dict:
 def _read(args: argparse.Namespace):
     from pathlib import Path
 
-    from .io import read_log
+    from .fitting.logs import read_log
 
     if str(args.log).endswith(".mat"):
-        from .emps import load_emps
+        from .studies.emps import load_emps
 
         return load_emps(args.log)
     return read_log(Path(args.log), args.meta)
 
 
 def _identified(args: argparse.Namespace) -> tuple[object, dict]:
-    from .identify import identify
+    from .fitting.identify import identify
 
     log = _read(args)
     fit = identify(log, model=args.model, progress=not args.json)
     if args.model == "rigid":
-        from .emps import rigid_warnings
+        from .fitting.rigid import rigid_warnings
 
         d = fit.to_dict()
         out = {name: {"value": d[name]["value"], "ci95": d[name]["ci95_hac"], "ci95_ls": d[name]["ci95_ls"]}
@@ -156,7 +156,7 @@ def cmd_identify(args: argparse.Namespace) -> dict:
 
 
 def cmd_predict(args: argparse.Namespace) -> dict:
-    from .predict import predict
+    from .fitting.predict import predict
 
     if args.model != "two-inertia":
         raise ValueError("prediction needs the two-inertia model (K*, J_l*, f_l*): a load sensor in the log")
@@ -172,13 +172,19 @@ def cmd_predict(args: argparse.Namespace) -> dict:
 
 
 def cmd_diagnose(args: argparse.Namespace) -> dict:
-    from .diagnose import diagnose
+    from .diagnosis.engine import diagnose
 
     log = _read(args)
     holdout = None
     if args.holdout:
         holdout = _read(argparse.Namespace(log=args.holdout, meta=args.meta))
+    reference = None
+    if str(args.log).endswith(".mat"):
+        from .studies.emps import emps_reference
+
+        reference = emps_reference(log, holdout)
     diag = diagnose(log, model=args.model, holdout=holdout, out_dir=args.out, max_effects=args.max_effects,
+                    reference=reference,
                     resolution_pulses=args.pulses, workers=args.workers, progress=not args.json,
                     candidate_budget_s=args.candidate_budget if args.candidate_budget > 0 else None)
     out = diag.to_dict()
@@ -194,7 +200,7 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
 
 
 def cmd_paper_effects(args: argparse.Namespace) -> dict:
-    from .paper_effects import write_paper_effects
+    from .studies.paper_effects import write_paper_effects
 
     sweep, report = write_paper_effects(args.out, levels=args.levels, n_pulses=args.pulses, workers=args.workers,
                                         scheduler=args.scheduler, base=_params_from(args), progress=not args.json)
@@ -207,7 +213,7 @@ def cmd_paper_effects(args: argparse.Namespace) -> dict:
 
 
 def cmd_emps_report(args: argparse.Namespace) -> dict:
-    from .emps import emps_report
+    from .studies.emps import emps_report
 
     report = emps_report(args.out, args.data)
     if not args.json:

@@ -1,7 +1,7 @@
 """The discrepancy workflow on logs in which an effect is hidden (issue 5 item 6).
 
 Each "measured" log comes from the FMU with one effect of the library switched on at a realistic magnitude
-(``ident.synthetic.HIDDEN_EFFECT_CASES``), encoder quantization, 2 nm load noise and a seeded random excitation that
+(``ident.fitting.synthetic.HIDDEN_EFFECT_CASES``), encoder quantization, 2 nm load noise and a seeded random excitation that
 is not the identifier's default. The workflow starts from the base model and must name the hidden effect (nothing
 on a clean log, both when two are hidden), shrink the load NRMSE at least 5x and recover the magnitude within 10 %.
 
@@ -18,11 +18,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ident.diagnose import diagnose
-from ident.io import LogError, write_log
-from ident.effects import EFFECTS
-from ident.params import DriveParams
-from ident.synthetic import HIDDEN_EFFECT_CASES, OUT_OF_LIBRARY_CASES, hidden_effect_log, out_of_library_log
+from ident.diagnosis.engine import diagnose
+from ident.fitting.logs import LogError, write_log
+from ident.fitting.synthetic import HIDDEN_EFFECT_CASES, OUT_OF_LIBRARY_CASES, hidden_effect_log, out_of_library_log
+from ident.model.effects import EFFECTS
+from ident.model.params import DriveParams
 
 _cache: dict[tuple[str, float], object] = {}
 
@@ -152,8 +152,8 @@ def test_identify_with_an_effect_from_scratch():
     """``identify.fit_pipeline`` with an effect in the model (what a candidate 'from scratch' and the convergence
     of an accepted effect run): from the effect's library starting points alone, the hidden viscous load friction and
     the drive's K*, J_l*, f_l* come back to the generating values."""
-    from ident.diagnose import EffectProblem
-    from ident.identify import fit_pipeline, identify
+    from ident.diagnosis.engine import EffectProblem
+    from ident.fitting.identify import fit_pipeline, identify
 
     log = hidden_effect_log("viscous_load", 1.5)
     base = identify(log).params  # the base model (bent: it lacks the damping); only its meta data matter here
@@ -178,14 +178,14 @@ def test_stribeck_candidate_from_scratch(ratio, v_s):
     """A Stribeck candidate identified from scratch (what the diagnosis runs when the base model leans on a bound)
     recovers generating values that are not among the library's starting points: the static/Coulomb ratio within
     10 %, v_s within a factor 1.5, K*, J_l*, f_l* within 1 %."""
-    from ident.diagnose import EffectProblem, FRESH_STAGE_ITER, _split, _truncate
-    from ident.identify import fit_pipeline, identify
-    from ident.synthetic import diagnosis_excitation, synthetic_log
+    from ident.diagnosis.engine import FRESH_STAGE_ITER, EffectProblem, split_training, truncate_log
+    from ident.fitting.identify import fit_pipeline, identify
+    from ident.fitting.synthetic import diagnosis_excitation, synthetic_log
 
     truth = DriveParams().with_values(stribeck_ratio=ratio, stribeck_velocity=v_s)
     log = synthetic_log(truth, diagnosis_excitation(truth, 4.0, 5000.0, seed=3), duration_s=4.0, seed=5,
                         load_offset_rad=1e-3)
-    train = _truncate(*_split(log, None))
+    train = truncate_log(*split_training(log, None))
     base = identify(train).params
     rows = np.array(EFFECTS["stribeck"].starts)
     problem, theta, _, _, _ = fit_pipeline(train, base, EffectProblem.maker(("stribeck",), base), rows,
@@ -203,8 +203,8 @@ def test_stribeck_candidate_from_scratch(ratio, v_s):
 def test_extra_scan_steps_each_effect_jointly():
     """The continuation's scan of effect unknowns: per effect a product grid (log-variables +-0.55, +-1.1; others
     +-15 %, +-30 % of their value), the base unknowns untouched; the identifier's own problem has none."""
-    from ident.diagnose import EffectProblem
-    from ident.identify import OutputError
+    from ident.diagnosis.engine import EffectProblem
+    from ident.fitting.identify import OutputError
 
     log = hidden_effect_log("clean", 0.3)
     with_effects = EffectProblem(log, DriveParams(), ("stribeck", "hardening"), 500, 1e-8)
@@ -228,8 +228,8 @@ def test_a_point_the_fmu_cannot_simulate_scores_inf_in_grids():
     """Grids and scans score every point; one where the FMU's state overflows (here a far too hard spring, the corner
     a from-scratch hardening candidate reached on the Stribeck log) must rank last, not abort the candidate, while
     the residuals themselves still raise (IPOPT treats that as an evaluation error and steps back)."""
-    from ident.diagnose import EffectProblem
-    from ident.plant import PlantError
+    from ident.diagnosis.engine import EffectProblem
+    from ident.model.plant import PlantError
 
     problem = EffectProblem(hidden_effect_log("clean", 0.5), DriveParams(), ("hardening",), 2000, 1e-8)
     try:
@@ -245,15 +245,15 @@ def test_a_point_the_fmu_cannot_simulate_scores_inf_in_grids():
 def test_a_refreshed_step_reports_its_new_models_metrics():
     """A step re-recorded after a better-converged model replaced its model passes its old extras along; the
     metrics must be the new model's (a stale residual/noise of 233,115 was reported beside an NRMSE of 1.4e-4)."""
-    from ident.diagnose import EffectProblem, _model, _step
+    from ident.diagnosis.engine import EffectProblem, diagnosis_step, evaluate_model
 
     log = hidden_effect_log("clean", 0.5)
     problem = EffectProblem(log, DriveParams(), (), 1500, 6.7e-9)
     try:
-        model = _model(log, problem, np.array([math.log(1e6), math.log(2500.0), math.log(0.1), 0.0]), 6.7e-9)
+        model = evaluate_model(log, problem, np.array([math.log(1e6), math.log(2500.0), math.log(0.1), 0.0]), 6.7e-9)
     finally:
         problem.close()
-    step = _step(None, model, None, pd.DataFrame(), 0, {"residual_over_noise_load": 233115.0, "refreshed": True})
+    step = diagnosis_step(None, model, None, pd.DataFrame(), 0, {"residual_over_noise_load": 233115.0, "refreshed": True})
     m = model.metrics
     assert step.extra["refreshed"] and step.extra["residual_over_noise_load"] == m["residual_over_noise_load"]
     assert math.isclose(m["residual_over_noise_load"] * 6.7e-9 / step.nrmse_load, np.std(log.load_pos_rad))

@@ -6,16 +6,16 @@ friction_asymmetry and viscous_asymmetry; bad input is refused."""
 from __future__ import annotations
 
 import json
-import math
 
 import casadi as ca
 import numpy as np
 import pytest
 
-from ident.diagnose_rigid import CANDIDATES, PAPER_ASYM, diagnose_rigid
-from ident.effects import rigid_force
-from ident.emps import PAPER, find_emps_data, identify_rigid, load_emps, validate_rigid
-from ident.io import DriveLog, LogError, LogMeta
+from ident.diagnosis.rigid import CANDIDATES, diagnose_rigid
+from ident.fitting.logs import DriveLog, LogError, LogMeta
+from ident.fitting.rigid import identify_rigid, validate_rigid
+from ident.model.effects import rigid_force
+from ident.studies.emps import PAPER, PAPER_ASYM, emps_reference, find_emps_data, load_emps
 
 DATA = find_emps_data()
 HAVE_PULSES = DATA is not None and (DATA / "DATA_EMPS_PULSES.mat").is_file()
@@ -29,7 +29,7 @@ def emps(tmp_path_factory):
     out = tmp_path_factory.mktemp("rigid_diag")
     log = load_emps(DATA / "DATA_EMPS.mat")
     log_p = load_emps(DATA / "DATA_EMPS_PULSES.mat")
-    return log, log_p, diagnose_rigid(log, holdout=log_p, out_dir=out), out
+    return log, log_p, diagnose_rigid(log, holdout=log_p, out_dir=out, reference=emps_reference(log, log_p)), out
 
 
 def test_candidates_are_the_rigid_library_effects():
@@ -153,7 +153,7 @@ FMU_RIGID = dict(K_s=1e6)
 def _fmu_motor_log(params, fs: float = 1000.0, duration_s: float = 16.0) -> DriveLog:
     """A motor-only log of the FMU: smooth torque sweeps both ways (three sines, peak ~3x the Coulomb level, the
     axis slides most of the time), encoder-quantized motor angle, the load column dropped."""
-    from ident.synthetic import synthetic_log
+    from ident.fitting.synthetic import synthetic_log
 
     t = np.arange(int(round(duration_s * fs))) / fs
     f = params.f_m + params.r * params.f_l
@@ -170,7 +170,7 @@ def _rigid_truth(p) -> dict[str, float]:
 def test_fmu_hidden_effect():
     """The FMU with hidden viscous friction on both bodies (b_m, b_l) logged at the motor only: the rigid diagnosis
     names viscous_motor alone, with the rigid drive's b_m + r^2 b_l, and its M and Fc are the rigid drive's."""
-    from ident.params import DriveParams
+    from ident.model.params import DriveParams
 
     p = DriveParams(**FMU_RIGID, b_m=6e-5, b_l=0.4)   # r^2 b_l = 4e-5: Fv = 1e-4 N m s/rad (~35 % of Fc at 35 rad/s)
     truth = _rigid_truth(p)
@@ -193,7 +193,7 @@ def test_fmu_hidden_effect():
 def test_fmu_hidden_asymmetries_share_the_library_parameters():
     """Hidden b_m with both asymmetries (friction_asymmetry a, viscous_asymmetry a_v): the diagnosis names
     viscous_motor then asymmetric_friction, and its final model carries the FMU's own parameters a and a_v."""
-    from ident.params import DriveParams
+    from ident.model.params import DriveParams
 
     p = DriveParams(**FMU_RIGID, b_m=1e-4, friction_asymmetry=0.15, viscous_asymmetry=0.3)
     truth = _rigid_truth(p)
@@ -209,7 +209,7 @@ def test_fmu_hidden_asymmetries_share_the_library_parameters():
 
 
 def test_fmu_without_hidden_effect_names_nothing():
-    from ident.params import DriveParams
+    from ident.model.params import DriveParams
 
     d = diagnose_rigid(_fmu_motor_log(DriveParams(**FMU_RIGID)))
     assert [s.added for s in d.steps] == [None] and d.effects == []

@@ -1,4 +1,4 @@
-"""The effect library's two copies agree: the CasADi terms of ident.effects and the C model of the FMU.
+"""The effect library's two copies agree: the CasADi terms of ident.model.effects and the C model of the FMU.
 
 The FMU simulates a pulse train with every effect on; at every sample the CasADi model is evaluated on the FMU's
 own state and must give the same deflection, spring torque and friction torques (slipping samples), and the same
@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ident import effects as E
-from ident.params import DriveParams
-from ident.plant import Plant
+from ident.model import effects as E
+from ident.model.params import DriveParams
+from ident.model.plant import Plant
 
 ALL_ON = dict(b_m=1e-4, b_l=0.5, stribeck_ratio=0.5, stribeck_velocity=2e-4, friction_asymmetry=0.2,
               hardening=3e6, hysteresis_torque=2e-3, hysteresis_stiffness=1e4, kinematic_error=1e-5,

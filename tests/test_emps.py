@@ -1,4 +1,4 @@
-"""EMPS benchmark (ident/emps.py) on the real data: the published IDIM-LS estimates, the CasADi/IPOPT solution
+"""EMPS benchmark (ident/studies/emps.py, ident/fitting/rigid.py) on the real data: the published IDIM-LS estimates, the CasADi/IPOPT solution
 against lstsq, cross-test validation, closed-loop simulation, report; and the loader's errors."""
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import scipy.io
 
-from ident.emps import (PAPER, _advance, _idim_system, emps_report, identify_rigid, load_emps,
-                        simulate_closed_loop, validate_rigid)
-from ident.io import LogError
+from ident.fitting.logs import LogError
+from ident.fitting.rigid import identify_rigid, idim_system, validate_rigid
+from ident.studies.emps import PAPER, advance, emps_report, load_emps, simulate_closed_loop
 
 
 def _emps_dir() -> Path | None:
@@ -104,7 +104,7 @@ def test_idim_ls_reproduces_the_published_estimates(fit, fit_and_time):
 
 @needs_data
 def test_casadi_ipopt_equals_lstsq(fit, log):
-    system = _idim_system(log, fit.settings)
+    system = idim_system(log, fit.settings)
     ref = np.linalg.lstsq(system.X, system.y, rcond=None)[0]
     np.testing.assert_allclose(fit.theta, ref, rtol=1e-6)
     assert fit.solver["solver"] == "casadi/ipopt" and fit.solver["return_status"] == "Solve_Succeeded"
@@ -137,15 +137,15 @@ def test_cross_validation_on_pulses(fit, log_pulses):
 def test_exact_stick_slip_segment():
     M, Fv, Fc = 95.0, 200.0, 20.0
     T = M / Fv
-    q, v, z = _advance(0.0, 0.01, 0.0, 1.0, M, Fv, Fc)            # coasts to rest and sticks (|u| = 0 <= Fc)
+    q, v, z = advance(0.0, 0.01, 0.0, 1.0, M, Fv, Fc)            # coasts to rest and sticks (|u| = 0 <= Fc)
     tz = T * math.log(1 + 0.01 * Fv / Fc)
     vinf = -Fc / Fv
     assert (v, z) == (0.0, 1)
     assert q == pytest.approx(vinf * tz + (0.01 - vinf) * T * (1 - math.exp(-tz / T)), rel=1e-12)
-    assert _advance(1.0, 0.0, 19.9, 1e-3, M, Fv, Fc) == (1.0, 0.0, 0)       # below breakaway: stays stuck
-    q, v, z = _advance(0.0, 0.0, 30.0, 1e-3, M, Fv, Fc)                      # breakaway
+    assert advance(1.0, 0.0, 19.9, 1e-3, M, Fv, Fc) == (1.0, 0.0, 0)       # below breakaway: stays stuck
+    q, v, z = advance(0.0, 0.0, 30.0, 1e-3, M, Fv, Fc)                      # breakaway
     assert v > 0 and q > 0 and z == 0
-    q, v, z = _advance(0.0, 0.001, -100.0, 1e-2, M, Fv, Fc)                  # reverses through zero
+    q, v, z = advance(0.0, 0.001, -100.0, 1e-2, M, Fv, Fc)                  # reverses through zero
     assert v < 0 and z == 1
 
 

@@ -611,8 +611,9 @@ def test_serialize_mid_run_reproduces_bit_identically(fmi: int) -> None:
 
 def _raw_run(fmu_path, fmi: int, set_effects: bool, torques, dt) -> np.ndarray:
     """fmpy directly: set no effect parameter at all, or set every one to its (off) start value."""
-    from fmpy import extract, instantiate_fmu, read_model_description
     import shutil
+
+    from fmpy import extract, instantiate_fmu, read_model_description
 
     md = read_model_description(str(fmu_path))
     vr = {v.name: v.valueReference for v in md.modelVariables}

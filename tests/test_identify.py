@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from ident import DriveParams
-from ident.identify import IdentificationError, NAMES, equation_error_start, identify
-from ident.io import LogError, write_log
-from ident.predict import predict
-from ident.resolution import impulse_resolution
-from ident.synthetic import synthetic_log
+from ident.fitting.identify import NAMES, IdentificationError, equation_error_start, identify
+from ident.fitting.logs import LogError, write_log
+from ident.fitting.predict import predict
+from ident.fitting.synthetic import synthetic_log
+from ident.protocols.resolution import impulse_resolution
 
 
 @pytest.fixture(scope="module")
@@ -126,7 +126,7 @@ def test_rigid_model_on_a_motor_encoder_only_log() -> None:
     motor encoder only: the rigid IDIM-LS (sliding rows only) finds the inertia to 2 %, and every parameter's
     residual-based (HAC) interval covers the truth. Viscous and Coulomb friction are hard to separate from one
     sine's sliding phases; the Coulomb estimate is correspondingly uncertain, and the fit says so."""
-    from ident.emps import rigid_warnings
+    from ident.fitting.rigid import rigid_warnings
 
     p = DriveParams(K_s=1e9, encoder_counts_per_rev=2**20)
     t = np.arange(4 * 5000) / 5000.0
@@ -144,8 +144,8 @@ def test_rigid_model_on_a_motor_encoder_only_log() -> None:
 def test_a_fit_leaning_on_a_bound_is_flagged() -> None:
     """A log the base model cannot fit at all (Stribeck friction: breakaway 1.5x the sliding level) drives the fit
     onto the edge of the physical range; the result must say so rather than present the edge as an estimate."""
-    from ident.identify import at_bound
-    from ident.synthetic import hidden_effect_log
+    from ident.fitting.identify import at_bound
+    from ident.fitting.synthetic import hidden_effect_log
 
     log = hidden_effect_log("stribeck", 2.8)  # the training part of the 4 s diagnosis log
     fit = identify(log)

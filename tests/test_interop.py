@@ -81,7 +81,7 @@ def _libcosim_clock() -> tuple[tuple[float, float], ...]:
 @functools.lru_cache(maxsize=None)
 def _fmpy_run(fmu: Path, clock: tuple[tuple[float, float], ...] | None = None) -> dict[str, np.ndarray]:
     import fmpy
-    from fmpy import read_model_description, extract
+    from fmpy import extract, read_model_description
 
     md = read_model_description(str(fmu))
     unzipdir = extract(str(fmu))

@@ -1,4 +1,4 @@
-"""Reading and writing logs (ident.io): exact round trips, and a clear LogError for every kind of bad input."""
+"""Reading and writing logs (ident.fitting.logs): exact round trips, and a clear LogError for every kind of bad input."""
 from __future__ import annotations
 
 import json
@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ident.io import DriveLog, LogError, LogMeta, read_log, write_log
+from ident.fitting.logs import DriveLog, LogError, LogMeta, read_log, write_log
 
 RATE = 1000.0
 META = {"r": 0.01, "J_m_kgm2": 2e-5, "f_m_Nm": 0.01, "arm_length_m": 0.3, "encoder_counts_per_rev": 12566,

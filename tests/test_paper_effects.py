@@ -1,4 +1,4 @@
-"""The paper-effects study (ident.paper_effects): a small sweep runs, its base case equals friction_sweep, an effect
+"""The paper-effects study (ident.studies.paper_effects): a small sweep runs, its base case equals friction_sweep, an effect
 case equals a direct impulse_resolution call, and the verdict logic is right on constructed tables."""
 from __future__ import annotations
 
@@ -9,10 +9,18 @@ import pandas as pd
 import pytest
 
 from ident import DriveParams, impulse_resolution
-from ident.effects import EFFECTS
-from ident.paper_effects import (AVALANCHE_RATIO, BASE_CASE, EFFECT_CASES, LINEAR_GROWTH, LINEAR_R2,
-                                 combine, effects_sweep, summarize)
-from ident.resolution import friction_sweep
+from ident.model.effects import EFFECTS
+from ident.protocols.sweep import friction_sweep
+from ident.studies.paper_effects import (
+    AVALANCHE_RATIO,
+    BASE_CASE,
+    EFFECT_CASES,
+    LINEAR_GROWTH,
+    LINEAR_R2,
+    combine,
+    effects_sweep,
+    summarize,
+)
 
 LEVELS = [0.01, 0.1, 1.0]
 N = 20
@@ -114,7 +122,7 @@ def test_summarize_fit_and_verdicts() -> None:
 
 
 def test_write_paper_effects(tmp_path) -> None:
-    from ident.paper_effects import write_paper_effects
+    from ident.studies.paper_effects import write_paper_effects
 
     cases = [BASE_CASE] + [c for c in EFFECT_CASES if c.name in ("asymmetry_20pct", "hysteresis_fl")]
     sweep, md = write_paper_effects(tmp_path / "pe", cases=cases, levels=[0.1, 1.0], n_pulses=10, workers=0)

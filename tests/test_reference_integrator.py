@@ -10,8 +10,7 @@ from dataclasses import replace
 
 import pytest
 
-from tests.reference.event_driven import (DriveSI, State, pulse_increments, run_to_rest, simulate,
-                                          trajectory)
+from tests.reference.event_driven import DriveSI, State, pulse_increments, run_to_rest, simulate, trajectory
 
 NOMINAL_W_STAR = 1e-3 / DriveSI.nominal().T_c  # 1 ms pulse
 

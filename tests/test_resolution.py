@@ -1,4 +1,4 @@
-"""Resolution protocols (ident.resolution, ident.controllers) against the independent event-driven reference
+"""Resolution protocols (ident.protocols.resolution, ident.protocols.controllers) against the independent event-driven reference
 (tests/reference: scipy DOP853 with located events). The reference side re-implements the protocol logic here
 (median decisions, the PD loop with its own floor-quantized encoder, the final-rest rule) and shares no code with
 ident. Experiments are shortened (N = 20-40) so the file runs in well under a minute."""
@@ -11,9 +11,16 @@ import pandas as pd
 import pytest
 
 from ident import DriveParams, Plant
-from ident.controllers import ImpulseController, LinearPD
-from ident.resolution import (ImpulseResolution, LinearResolution, ThresholdNotFound, find_threshold,
-                              impulse_experiment, impulse_resolution, linear_resolution)
+from ident.protocols.controllers import ImpulseController, LinearPD
+from ident.protocols.resolution import (
+    ImpulseResolution,
+    LinearResolution,
+    ThresholdNotFound,
+    find_threshold,
+    impulse_experiment,
+    impulse_resolution,
+    linear_resolution,
+)
 from tests.reference.event_driven import DriveSI, State, pulse_increments, simulate
 
 EPS1 = 0.1e-6

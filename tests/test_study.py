@@ -11,8 +11,9 @@ import pytest
 
 from ident import DriveParams
 from ident.cli import main
-from ident.report import PAPER, write_study
-from ident.resolution import friction_levels, friction_sweep, impulse_resolution
+from ident.protocols.resolution import impulse_resolution
+from ident.protocols.sweep import friction_levels, friction_sweep
+from ident.studies.paper import PAPER, write_study
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
@@ -91,7 +92,7 @@ def test_study_report(tmp_path: Path) -> None:
 
 def test_failed_study_leaves_no_report(tmp_path: Path, monkeypatch) -> None:
     """A study that fails while writing leaves neither a report nor its staging folder behind."""
-    import ident.report as report
+    import ident.studies.paper as report
 
     real = report.write_report
 

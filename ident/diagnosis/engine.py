@@ -51,14 +51,22 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from .diagnosis import Diagnosis, DiagnosisStep, NamedEffect
-from .effects import EFFECTS, Effect
-from .identify import (Z95, IdentificationError, OutputError, TimeBudgetExceeded, _casadi_fit, _covariances,
-                       at_bound, fit_pipeline, identify,
-                       white_noise_std)
-from .io import DriveLog, LogError
-from .params import DriveParams
-from .plant import Plant
+from ..fitting.identify import (
+    Z95,
+    OutputError,
+    TimeBudgetExceeded,
+    at_bound,
+    covariances,
+    fit_ipopt,
+    fit_pipeline,
+    identify,
+    white_noise_std,
+)
+from ..fitting.logs import DriveLog, LogError
+from ..model.effects import EFFECTS, Effect
+from ..model.params import DriveParams
+from ..model.plant import Plant
+from .result import Diagnosis, DiagnosisStep, NamedEffect, PublishedReference
 
 HOLDBACK_FRACTION = 0.3
 MIN_GAIN = 1.05          # held-back cost must fall by > 5 % ...
@@ -238,7 +246,7 @@ def _metrics(log: DriveLog, sim: dict[str, np.ndarray], stop: int, sigma_l: floa
     }
 
 
-def _model(log: DriveLog, problem: EffectProblem, theta: np.ndarray, sigma_l: float) -> _Model:
+def evaluate_model(log: DriveLog, problem: EffectProblem, theta: np.ndarray, sigma_l: float) -> _Model:
     sim = _simulate_full(log, problem, theta)
     m = _metrics(log, sim, problem.stop, sigma_l, problem.sigma_m)
     return _Model(problem.effects, np.asarray(theta, dtype=float), problem.params(theta), m["train_cost"],
@@ -318,7 +326,7 @@ def _scan(problem: EffectProblem, theta: np.ndarray, new_slice: slice | None, d0
                     cand[new_slice.start] = theta[new_slice.start] * m
                 cand = np.clip(cand, lo, hi)
                 scored.append((problem.cost(cand), len(scored), cand))
-    problem._cache.clear()
+    problem.clear_cache()
     scored.sort(key=lambda c: (c[0], c[1]))
     return [c[2] for c in scored[:keep]]
 
@@ -347,16 +355,16 @@ def _refit(log: DriveLog, base: DriveParams, current: _Model, effects: tuple[str
     head = min(heads, key=problem.cost)
     firsts = _scan(problem, head, new_slice, np.linspace(-1.0, 1.0, 21), (0.97, 1.0, 1.03), 2)
     signature = _signature(problem, firsts[0], n_new) if new else 0.0
-    fits = [_casadi_fit(problem, th, lo, hi, max_iter, max_cpu_time / 6) for th in firsts]
+    fits = [fit_ipopt(problem, th, lo, hi, max_iter, max_cpu_time / 6) for th in firsts]
     theta = min(fits, key=lambda f: f[1]["cost"])[0]
     for w in windows[1:]:
         problem.close()
         problem = EffectProblem(log, base, effects, w, sigma_l, deadline=deadline)
         theta = _scan(problem, theta, new_slice, theta[3] + np.linspace(-0.1, 0.1, 5))[0]
         last = w == windows[-1]
-        theta, _ = _casadi_fit(problem, theta, lo, hi, max_iter if last else max(4, max_iter // 2),
+        theta, _ = fit_ipopt(problem, theta, lo, hi, max_iter if last else max(4, max_iter // 2),
                                max_cpu_time / len(windows))
-    return _model(log, problem, theta, sigma_l), problem, signature
+    return evaluate_model(log, problem, theta, sigma_l), problem, signature
 
 
 def _without(log: DriveLog, base: DriveParams, model: _Model, name: str, stop: int, sigma_l: float,
@@ -372,8 +380,8 @@ def _fitted_from(log: DriveLog, base: DriveParams, effects: tuple[str, ...], the
     """The model ``effects`` refitted on the training part from ``theta0`` (IPOPT, at most ``max_iter``)."""
     problem = EffectProblem(log, base, effects, stop, sigma_l)
     try:
-        theta, _ = _casadi_fit(problem, np.array(theta0, dtype=float), *problem.bounds(), max_iter)
-        return _model(log, problem, theta, sigma_l)
+        theta, _ = fit_ipopt(problem, np.array(theta0, dtype=float), *problem.bounds(), max_iter)
+        return evaluate_model(log, problem, theta, sigma_l)
     finally:
         problem.close()
 
@@ -392,7 +400,7 @@ def _backward(full: DriveLog, base: DriveParams, current: _Model, stop: int, sig
     dropped in turn and the rest refitted from the final optimum; the one whose removal costs least goes if the
     final model does not predict the held-back data significantly better than the model without it. Returns the
     model and the removed effects with their held-back cost ratios."""
-    from .distributed import run_batch
+    from ..protocols.batch import run_batch
 
     removed: list[tuple[str, float]] = []
     while len(current.effects) >= 2:
@@ -435,7 +443,7 @@ def _evaluated(full: DriveLog, base: DriveParams, effects: tuple[str, ...], thet
     """The model ``effects`` at ``theta``, simulated over the whole log."""
     problem = EffectProblem(full, base, effects, stop, sigma_l)
     try:
-        return _model(full, problem, theta, sigma_l)
+        return evaluate_model(full, problem, theta, sigma_l)
     finally:
         problem.close()
 
@@ -501,7 +509,7 @@ def _try_candidate(args: tuple) -> dict[str, Any]:
 
 def _interval_cov(problem: EffectProblem, theta: np.ndarray, log: DriveLog) -> np.ndarray:
     """The larger (per parameter) of the sandwich and noise-only covariances, as ``identify`` reports."""
-    noise, sand, _ = _covariances(problem, theta, max(10, int(log.meta.sample_rate_hz / 50)))
+    noise, sand, _ = covariances(problem, theta, max(10, int(log.meta.sample_rate_hz / 50)))
     return np.where(np.diag(sand)[:, None] >= np.diag(noise)[:, None], sand, noise)
 
 
@@ -593,13 +601,13 @@ def _try_fresh_candidate(args: tuple) -> dict[str, Any]:
 
     def fit(deadline: float | None) -> tuple[_Model, float, np.ndarray]:
         rows = _start_rows(current.theta[4:], name, base)
-        problem, theta, _, _, _ = fit_pipeline(_truncate(full, stop), base,
+        problem, theta, _, _, _ = fit_pipeline(truncate_log(full, stop), base,
                                                EffectProblem.maker(effects, base, deadline), rows,
                                                stage_iter=FRESH_STAGE_ITER)
         problem.close()
         problem = EffectProblem(full, base, effects, stop, sigma_l)
         try:
-            return _model(full, problem, theta, sigma_l), math.nan, _interval_cov(problem, theta, full)
+            return evaluate_model(full, problem, theta, sigma_l), math.nan, _interval_cov(problem, theta, full)
         finally:
             problem.close()
 
@@ -654,7 +662,7 @@ def _candidate_table(results: list[dict[str, Any]], current: _Model) -> pd.DataF
 
 # ------------------------------------------------------------------------------------------ the workflow --------
 
-def _split(log: DriveLog, holdout: DriveLog | None) -> tuple[DriveLog, int]:
+def split_training(log: DriveLog, holdout: DriveLog | None) -> tuple[DriveLog, int]:
     """The log to simulate (training first) and the training length."""
     if holdout is None:
         return log, int(round((1 - HOLDBACK_FRACTION) * log.n))
@@ -671,13 +679,13 @@ def _split(log: DriveLog, holdout: DriveLog | None) -> tuple[DriveLog, int]:
     return joined, log.n
 
 
-def _truncate(log: DriveLog, stop: int) -> DriveLog:
+def truncate_log(log: DriveLog, stop: int) -> DriveLog:
     return replace(log, time_s=log.time_s[:stop], motor_torque_Nm=log.motor_torque_Nm[:stop],
                    motor_pos_rad=log.motor_pos_rad[:stop], load_pos_rad=log.load_pos_rad[:stop])
 
 
 def _resolution_um(params: DriveParams, n_pulses: int) -> float | None:
-    from .resolution import ThresholdNotFound, impulse_resolution
+    from ..protocols.resolution import ThresholdNotFound, impulse_resolution
 
     try:
         return float(impulse_resolution(params, n_pulses=n_pulses).resolution_m * 1e6)
@@ -685,7 +693,7 @@ def _resolution_um(params: DriveParams, n_pulses: int) -> float | None:
         return None
 
 
-def _step(added: str | None, model: _Model, score: float | None, table: pd.DataFrame, n_pulses: int,
+def diagnosis_step(added: str | None, model: _Model, score: float | None, table: pd.DataFrame, n_pulses: int,
           extra: dict[str, Any]) -> DiagnosisStep:
     m = model.metrics
     values = {k: float(v) for k, v in model.params.to_dict().items()}
@@ -722,7 +730,7 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
              out_dir: str | Path | None = None, candidates: tuple[str, ...] | None = None, max_effects: int = 3,
              max_iter: int = 15, resolution_pulses: int = 200, workers: int = 0, export_fmu: bool = True,
              stop_at_noise: bool = True, search_from_scratch: bool = True, candidate_budget_s: float | None = 300.0,
-             progress: bool = False) -> Diagnosis:
+             progress: bool = False, reference: PublishedReference | None = None) -> Diagnosis:
     """Run the discrepancy workflow on ``log`` (see the module docstring); ``out_dir``: write the report, plots and
     the fitted FMU there. ``workers``: candidates refitted in parallel on Dask (0: in this process).
     ``stop_at_noise``: no candidate search once the model explains the load down to its sensor noise (on the
@@ -731,7 +739,8 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
     above the noise, identify the model with each candidate from scratch too (slower; see ``_try_fresh_candidate``);
     also when the current model leans on a parameter bound (``identify.at_bound``), skipping the refits from it.
     ``candidate_budget_s``: wall time allowed to each candidate's fit (None: unlimited); a candidate not fitted in
-    time is reported as such, and the diagnosis says it cannot rule it out."""
+    time is reported as such, and the diagnosis says it cannot rule it out. ``reference``: published figures of the
+    data set to print beside a rigid diagnosis (``ident.studies.emps.emps_reference``)."""
     t0 = time.perf_counter()
     if model not in ("two-inertia", "rigid"):
         raise ValueError(f"model = {model!r}: use 'two-inertia' or 'rigid'")
@@ -739,10 +748,10 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
         if model == "two-inertia":
             raise LogError(f"{log.source}: the two-inertia diagnosis needs load_pos_rad and J_m_kgm2, f_m_Nm, "
                            "encoder_counts_per_rev in the sidecar; use model='rigid' for a motor-only log")
-        from .diagnose_rigid import diagnose_rigid
+        from .rigid import diagnose_rigid
 
-        return diagnose_rigid(log, holdout=holdout, out_dir=out_dir, progress=progress)
-    full, stop = _split(log, holdout)
+        return diagnose_rigid(log, holdout=holdout, out_dir=out_dir, progress=progress, reference=reference)
+    full, stop = split_training(log, holdout)
     names = tuple(candidates) if candidates is not None else TWO_INERTIA_CANDIDATES
     unknown = [c for c in names if c not in EFFECTS]
     if unknown:
@@ -759,19 +768,19 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
         steps.append(rigid.pop("step"))
         say(f"rigid model: load NRMSE {steps[-1].nrmse_load:.4g}")
     say("fitting the base two-inertia model ...")
-    fit = identify(_truncate(full, stop), progress=progress)
+    fit = identify(truncate_log(full, stop), progress=progress)
     base = fit.params  # the base fit: the effects' scales (typical magnitudes) follow this drive
     # every model is weighed with the load sensor's own noise (not the base fit's residual level, which would
     # drown the load's information in the encoder's quantization once the base model is wrong)
     sigma_l = sigma_quiet
     problem = EffectProblem(full, base, (), stop, sigma_l)
-    current = _model(full, problem, fit.theta, sigma_l)
+    current = evaluate_model(full, problem, fit.theta, sigma_l)
     problem.close()
     models = [current]
     if model == "rigid":
         held = current.sim["res_l"][stop:]
         gain = rigid["held_cost"] / float(np.sum((held / sigma_quiet) ** 2))
-        steps.append(_step("flexibility", current, gain, pd.DataFrame([{"candidate": "flexibility",
+        steps.append(diagnosis_step("flexibility", current, gain, pd.DataFrame([{"candidate": "flexibility",
                                                                           "heldback_gain": gain}]),
                            resolution_pulses, {}))
         named.append(NamedEffect("flexibility", base.with_values(K_star=fit.estimates["K_star"].value).K_s,
@@ -779,7 +788,7 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
                                  EFFECTS["flexibility"].signature + f"; held-back load cost falls {gain:.3g}x",
                                  None, None, {"K_s": fit.params.K_s}))
     else:
-        steps.append(_step(None, current, None, pd.DataFrame(), resolution_pulses, {}))
+        steps.append(diagnosis_step(None, current, None, pd.DataFrame(), resolution_pulses, {}))
     say(f"base: load NRMSE {current.metrics['nrmse_load']:.4g}, held-back {current.metrics['heldback_nrmse_load']:.4g}")
 
     remaining = [c for c in names if c in TWO_INERTIA_CANDIDATES]
@@ -792,7 +801,7 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
                          f"{m['heldback_over_noise_load']:.3f}x held back): no candidate can improve it, none tried")
             say(notes[-1])
             break
-        from .distributed import run_batch
+        from ..protocols.batch import run_batch
 
         leaning = at_bound(current.theta)
         order = _slowest_first(remaining, full, base, current, stop, sigma_l)
@@ -834,7 +843,7 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
                 reruns += 1
                 refreshed = False
                 models[-1] = current
-                steps[-1] = _step(steps[-1].added, current, steps[-1].score, table, resolution_pulses,
+                steps[-1] = diagnosis_step(steps[-1].added, current, steps[-1].score, table, resolution_pulses,
                                   dict(steps[-1].extra, refreshed=True))
                 continue
             break
@@ -843,14 +852,14 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
             current = _resimulated(full, base, best["model"], stop, sigma_l)
         else:
             say(f"adding {best['name']}: identifying the model with it from scratch ...")
-            current = _converge(_truncate(full, stop), full, stop, base, best["model"], sigma_l, progress)
+            current = _converge(truncate_log(full, stop), full, stop, base, best["model"], sigma_l, progress)
         gain = previous.held_cost / max(current.held_cost, 1e-300)
         runner = next((r for r in ok if r is not best), None)
         margin = (float(runner["model"].held_cost / max(best["model"].held_cost, 1e-300)) if runner else None)
         named.append(_named(EFFECTS[best["name"]], current, best["cov"], best["signature"], margin,
                             runner["name"] if runner else None, gain))
         models.append(current)
-        steps.append(_step(best["name"], current, gain, pd.DataFrame(), resolution_pulses,
+        steps.append(diagnosis_step(best["name"], current, gain, pd.DataFrame(), resolution_pulses,
                            {"signature_pct": 100 * best["signature"]}))
         remaining.remove(best["name"])
     current, removed = _backward(full, base, current, stop, sigma_l, max_iter, workers, progress)
@@ -860,7 +869,7 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
                          f"{ratio:.3g}x better with it: it stood in for effects named after it)")
         named = [e for e in named if e.name not in dict(removed)]
         models.append(current)
-        steps.append(_step(None, current, None, pd.DataFrame(), resolution_pulses,
+        steps.append(diagnosis_step(None, current, None, pd.DataFrame(), resolution_pulses,
                            {"removed": [n for n, _ in removed]}))
     named = _final_magnitudes(full, stop, current, named, sigma_l)
     table = residual_regimes(full, current.sim, sigma_l, base.f_m)
@@ -874,7 +883,7 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
                           f"{current.metrics['nrmse_load']:.3g}), so it does not reproduce this log; they are the "
                           "library's best improvement, not an explanation (see unexplained)")
     if out_dir is not None:
-        from .diagnose_report import write_diagnosis
+        from .report import write_diagnosis
 
         write_diagnosis(diag, full, stop, models, sigma_quiet, out_dir, export_fmu=export_fmu)
     diag.elapsed_s = time.perf_counter() - t0

@@ -6,9 +6,6 @@ complete, so a failed run never leaves a report that looks finished.
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,9 +14,11 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from .params import DriveParams
-from .resolution import (FrictionSweep, ImpulseResolution, LinearResolution, friction_sweep, impulse_resolution,
-                         linear_resolution)
+from ..common.markdown import md_table
+from ..common.output import staged_folder
+from ..model.params import DriveParams
+from ..protocols.resolution import ImpulseResolution, LinearResolution, impulse_resolution, linear_resolution
+from ..protocols.sweep import FrictionSweep, friction_sweep
 
 # What the paper reports (sections III-V), for the side-by-side table.
 PAPER = {
@@ -94,15 +93,6 @@ def run_study(params: DriveParams | None = None, *, n_pulses: int = 1000, n_step
         sweep = friction_sweep(params, levels, n_pulses, scheduler=scheduler, workers=workers, progress=progress)
         bar.update()
     return Study(params, linear, impulse, sweep)
-
-
-def _md_table(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
-    cols = list(df.columns)
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for _, row in df.iterrows():
-        cells = [format(v, floatfmt) if isinstance(v, (float, np.floating)) else str(v) for v in row]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
 
 
 def _explanation(study: Study) -> str:
@@ -182,11 +172,11 @@ HarmonicDrive FMU (exact stick-slip) through fmpy. Protocol: physics.md section 
 eps2 = {imp.eps2:g}, N = {imp.n_pulses} pulses, {lin.n_steps} PD steps after {lin.warmup} warm-up steps,
 {len(study.sweep.f_l_star)} friction levels).
 
-{_md_table(drive)}
+{md_table(drive)}
 
 ## Paper vs model
 
-{_md_table(study.comparison())}
+{md_table(study.comparison())}
 
 ## III. Linear controller (PD on the motor encoder)
 
@@ -213,7 +203,7 @@ Resolution vs f_l*: linear fit slope {study.sweep.trend()['slope_um']:.4f} um, i
 {study.sweep.trend()['intercept_um']:.4f} um, R^2 = {study.sweep.trend()['r2']:.3f} (median: slope
 {study.sweep.trend('median_um')['slope_um']:.2e} um). Full table: `sweep.csv`.
 
-{_md_table(sweep_df[cols])}
+{md_table(sweep_df[cols])}
 
 ![histogram at f_l* = 0.1]({plots['histogram_fl0.1'].name})
 ![increment vs pulse number at f_l* = 0.1]({plots['sequence_fl0.1'].name})
@@ -229,17 +219,7 @@ Resolution vs f_l*: linear fit slope {study.sweep.trend()['slope_um']:.4f} um, i
 
 def write_study(out_dir: str | Path, params: DriveParams | None = None, **kw: Any) -> tuple[Study, Path]:
     """Run the study and write its report; files appear in ``out_dir`` only once everything has succeeded."""
-    out = Path(out_dir)
-    out.parent.mkdir(parents=True, exist_ok=True)
     study = run_study(params, **kw)
-    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
-    try:
+    with staged_folder(out_dir, last="report.md") as staging:
         write_report(study, staging)
-        out.mkdir(exist_ok=True)
-        names = sorted(os.listdir(staging), key=lambda n: n == "report.md")  # report.md last
-        for name in names:
-            os.replace(staging / name, out / name)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-    return study, out / "report.md"
-
+    return study, Path(out_dir) / "report.md"

@@ -22,9 +22,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,9 +30,13 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from .checks import whole
-from .params import DriveParams
-from .resolution import ImpulseResolution, friction_levels, impulse_resolution
+from ..common.checks import whole
+from ..common.markdown import md_table
+from ..common.output import staged_folder
+from ..common.plotting import figure, save
+from ..model.params import DriveParams
+from ..protocols.resolution import ImpulseResolution, impulse_resolution
+from ..protocols.sweep import friction_levels
 
 # -- verdict criteria -----------------------------------------------------------------------------------------
 LINEAR_R2 = 0.9        # linear growth: R^2 of the line max increment = slope f_l* + intercept at least this ...
@@ -271,22 +272,15 @@ class EffectsSweep:
     def plot(self, path: str | Path, best: str | None = None) -> Path:
         """Left: max increment vs f_l* for every case (base in black). Right: increment vs pulse number at the
         highest level for the base and ``best`` (default: the best case by ``score``)."""
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         best = best or (self.best(1) or [BASE_CASE.name])[0]
         df = self.to_frame()
-        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(13, 5))
+        fig, (ax1, ax2) = figure(1, 2, size=(13, 5))
         for i, c in enumerate(self.cases):
             d = df[df["case"] == c.name]
             base = c.name == BASE_CASE.name
             ax1.plot(d["f_l_star"], d["resolution_um"], "o-" if base or c.name == best else ".-",
                      color="k" if base else f"C{i % 10}", lw=2 if base or c.name == best else 1, ms=4, label=c.name)
-        ax1.set(xlabel="load friction level f_l*", ylabel="max increment (resolution) [um]",
+        ax1.set(xlabel="load friction level f_l*", ylabel="max increment (resolution) [µm]",
                 title="Resolution vs load friction, with and without each effect")
         ax1.legend(fontsize=7, ncol=2)
         hi = int(np.argmax(self.f_l_star))
@@ -294,13 +288,10 @@ class EffectsSweep:
             if name in self.results:
                 x = self.results[name][hi].increments_m * 1e6
                 ax2.plot(np.arange(1, x.size + 1), x, ".-", color=color, ms=3, lw=0.5, label=name)
-        ax2.set(xlabel="pulse number", ylabel="arm increment [um]",
+        ax2.set(xlabel="pulse number", ylabel="arm increment [µm]",
                 title=f"Increment vs pulse number at f_l* = {self.f_l_star[hi]:.3g}")
         ax2.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
-        return path
+        return save(fig, path)
 
 
 def effects_sweep(cases: Sequence[EffectCase] | None = None, levels: int | Sequence[float] = 13,
@@ -310,7 +301,7 @@ def effects_sweep(cases: Sequence[EffectCase] | None = None, levels: int | Seque
     f_l* (``friction_levels(levels)`` if an int), on drive ``base`` (nominal by default; the default cases are
     ``effect_cases(base)``). One Dask task per case and level (``run_batch``; ``workers=0``: serial in this
     process); results do not depend on where they ran."""
-    from .distributed import run_batch
+    from ..protocols.batch import run_batch
 
     base = base or DriveParams()
     cases = list((EFFECT_CASES if base == DriveParams() else effect_cases(base)) if cases is None else cases)
@@ -334,16 +325,6 @@ def effects_sweep(cases: Sequence[EffectCase] | None = None, levels: int | Seque
 
 
 # -- the report ----------------------------------------------------------------------------------------------------
-def _md_table(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
-    cols = list(df.columns)
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for _, row in df.iterrows():
-        cells = [("yes" if v else "no") if isinstance(v, (bool, np.bool_)) else
-                 format(v, floatfmt) if isinstance(v, (float, np.floating)) else str(v) for v in row]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
 def _verdict_words(row: Mapping[str, Any]) -> str:
     if row["reproduces"]:
         return "reproduces both claims"
@@ -483,14 +464,8 @@ def write_paper_effects(out_dir: str | Path, *, cases: Sequence[EffectCase] | No
     if combine_best and len(best) == 2:
         combo = combine(sweep.case(best[0]), sweep.case(best[1]))
         sweep = sweep.merge(effects_sweep([combo], **kw))
-    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
-    try:
+    with staged_folder(out, last="paper_effects.md") as staging:
         _write(sweep, staging, best)
-        out.mkdir(exist_ok=True)
-        for name in sorted(os.listdir(staging), key=lambda n: n == "paper_effects.md"):  # the report last
-            os.replace(staging / name, out / name)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
     return sweep, out / "paper_effects.md"
 
 
@@ -518,7 +493,7 @@ def _write(sweep: EffectsSweep, out: Path, best: list[str]) -> Path:
     per_level = ["f_l_star", "threshold_amplitude", "resolution_um", "median_um", "min_um", "first_increment_um",
                  "first_motion_um", "first_motion_pulse", "later_max_um", "max_pulse"]
     shown = [BASE_CASE.name] + [c for c in (top[0] if top else None,) if c and c != BASE_CASE.name]
-    lvl_tables = "\n\n".join(f"**{name}**\n\n{_md_table(df[df['case'] == name][per_level])}" for name in shown)
+    lvl_tables = "\n\n".join(f"**{name}**\n\n{md_table(df[df['case'] == name][per_level])}" for name in shown)
     lo, hi = sweep.f_l_star.min(), sweep.f_l_star.max()
     n = int(df["n_pulses"].iloc[0])
     combo = [c.name for c in sweep.cases if "+" in c.name]
@@ -558,11 +533,11 @@ Run time {sweep.elapsed_s:.0f} s.
 
 ## Cases
 
-{_md_table(cases_tab)}
+{md_table(cases_tab)}
 
 ## Summary (max increment vs f_l\\*, first motion at f_l\\* = {hi:.3g})
 
-{_md_table(summary[cols])}
+{md_table(summary[cols])}
 
 ![max increment vs f_l* with and without the effects; increment vs pulse number](paper_effects.png)
 

@@ -13,10 +13,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .checks import whole
+from ..common.checks import whole
+from ..model.params import DriveParams
+from ..protocols.resolution import impulse_resolution, linear_resolution
 from .identify import NAMES, TwoInertiaFit
-from .params import DriveParams
-from .resolution import impulse_resolution, linear_resolution
 
 
 def _resolutions(task: tuple[DriveParams, int, int]) -> tuple[float, float, int]:
@@ -58,7 +58,7 @@ def predict(fit: TwoInertiaFit, *, n_draws: int = 20, n_pulses: int = 1000, n_st
     chol = np.linalg.cholesky(fit.cov_sandwich + 1e-300 * np.eye(3))
     thetas = [theta] + [theta + chol @ rng.standard_normal(3) for _ in range(n_draws)]
     drives = [fit.params.with_values(**dict(zip(NAMES, map(float, np.exp(t))))) for t in thetas]
-    from .distributed import run_batch
+    from ..protocols.batch import run_batch
 
     results = run_batch(_resolutions, [(p, n_pulses, n_steps) for p in drives], scheduler=scheduler,
                         workers=workers if n_draws else 0, progress=progress, desc="resolution draws")

@@ -80,3 +80,20 @@ class Diagnosis:
         """One row per step: what was added and the gap after it."""
         return pd.DataFrame([{k: v for k, v in s.to_dict().items() if k not in ("params", "candidates")}
                              for s in self.steps])
+
+
+@dataclass
+class PublishedReference:
+    """Published figures of a data set, printed beside the diagnosis's own (e.g. the EMPS paper's for its logs).
+
+    ``step_errors`` maps a model label as the report writes it (e.g. ``"M, Fc, offset, Fv"``) to the published
+    (training, held-back) relative errors as text; ``params`` holds the published parameters of the model labelled
+    ``params_model``; ``notes`` are bullet lines for the report's "Against the paper" section. The diagnosis knows no
+    data set: whoever loads one passes its reference (``ident.studies.emps.emps_reference``)."""
+
+    citation: str
+    step_errors: dict[str, tuple[str, str]]
+    params_model: str
+    params: dict[str, float]
+    notes: list[str] = field(default_factory=list)
+

@@ -6,53 +6,32 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .diagnosis import Diagnosis
-from .io import DriveLog
-
-
-def _md_table(df) -> str:  # noqa: ANN001 - a DataFrame
-    if df is None or len(df) == 0:
-        return "(none)\n"
-    cols = list(df.columns)
-    out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for row in df.itertuples(index=False):
-        cells = []
-        for v in row:
-            if isinstance(v, float):
-                cells.append("" if math.isnan(v) else f"{v:.4g}")
-            else:
-                cells.append("" if v is None else str(v))
-        out.append("| " + " | ".join(cells) + " |")
-    return "\n".join(out) + "\n"
+from ..common.markdown import md_table
+from ..common.output import staged_folder
+from ..common.plotting import figure, save
+from ..fitting.logs import DriveLog
+from .result import Diagnosis
 
 
 def _plots(log: DriveLog, stop: int, models: list[Any], out: Path) -> dict[str, str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     first, last = models[0], models[-1]
     files = {}
     t = log.time_s
-    fig, axes = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
+    fig, axes = figure(2, 1, size=(11, 6), sharex=True)
     for ax, m, title in ((axes[0], first, "base model"), (axes[1], last, "final model")):
         ax.plot(t, m.sim["res_l"] * 1e9, lw=0.5)
         ax.axvline(t[stop], color="k", ls="--", lw=0.8)
         ax.set_ylabel("load residual [nrad]")
         ax.set_title(f"{title}: {' + '.join(m.effects) or 'no effects'} (dashed: start of the held-back part)")
     axes[1].set_xlabel("time [s]")
-    fig.tight_layout()
-    files["residual_vs_time"] = _save(fig, out / "residual_vs_time.png")
+    files["residual_vs_time"] = save(fig, out / "residual_vs_time.png").name
 
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
+    fig, axes = figure(1, 3, size=(15, 4.5))
     for m, label in ((first, "base"), (last, "final")):
         axes[0].plot(m.sim["v_l"], m.sim["res_l"] * 1e9, ".", ms=1, alpha=0.4, label=label)
         axes[1].plot(np.mod(2 * m.sim["q_m"], 2 * math.pi), m.sim["res_l"] * 1e9, ".", ms=1, alpha=0.4, label=label)
@@ -67,10 +46,9 @@ def _plots(log: DriveLog, stop: int, models: list[Any], out: Path) -> dict[str, 
     axes[2].plot(twist * 1e6, last.sim["spring_torque"], lw=0.3)
     axes[2].set_xlabel("measured twist r q_m - q_l (zero removed) [urad]")
     axes[2].set_ylabel("final model spring torque [N m]")
-    fig.tight_layout()
-    files["residual_vs_state"] = _save(fig, out / "residual_vs_state.png")
+    files["residual_vs_state"] = save(fig, out / "residual_vs_state.png").name
 
-    fig, ax = plt.subplots(figsize=(11, 4))
+    fig, ax = figure(size=(11, 4))
     ax.plot(t, log.load_pos_rad * 1e6, lw=0.6, label="measured")
     for m, label in ((first, "base"), (last, "final")):
         ax.plot(t, m.sim["q_l"] * 1e6, lw=0.5, label=f"{label} model")
@@ -78,17 +56,8 @@ def _plots(log: DriveLog, stop: int, models: list[Any], out: Path) -> dict[str, 
     ax.set_xlabel("time [s]")
     ax.set_ylabel("load angle [urad]")
     ax.legend()
-    fig.tight_layout()
-    files["fit"] = _save(fig, out / "fit.png")
+    files["fit"] = save(fig, out / "fit.png").name
     return files
-
-
-def _save(fig: Any, path: Path) -> str:
-    import matplotlib.pyplot as plt
-
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path.name
 
 
 def _markdown(diag: Diagnosis, files: dict[str, str]) -> str:
@@ -105,7 +74,7 @@ def _markdown(diag: Diagnosis, files: dict[str, str]) -> str:
              "it is then identified from scratch; at the end every named effect must survive backward elimination "
              "(see `ident/diagnose.py`). `residual_over_noise_load`: load residual RMS / load sensor noise (1 = the "
              "model explains everything but the noise).", "",
-             "## The gap after every step", "", _md_table(steps[keep]), "",
+             "## The gap after every step", "", md_table(steps[keep]), "",
              "## Named effects", ""]
     if diag.effects:
         for e in diag.effects:
@@ -118,8 +87,8 @@ def _markdown(diag: Diagnosis, files: dict[str, str]) -> str:
     for i, s in enumerate(diag.steps):
         if len(s.candidates):
             lines += [f"### Step {i} (model: {', '.join(s.extra.get('effects', [])) or 'base'})", "",
-                      _md_table(s.candidates), ""]
-    lines += ["## Where the final model and the log still disagree", "", _md_table(diag.residual_table), ""]
+                      md_table(s.candidates), ""]
+    lines += ["## Where the final model and the log still disagree", "", md_table(diag.residual_table), ""]
     if diag.unexplained:
         lines += ["**Unexplained structure** (no library effect removes it):", ""]
         lines += [f"- {u['regime']}: {u['detail']}" for u in diag.unexplained]
@@ -139,12 +108,10 @@ def write_diagnosis(diag: Diagnosis, log: DriveLog, stop: int, models: list[Any]
                     out_dir: str | Path, *, export_fmu: bool = True) -> Path:
     """Write diagnosis.md, diagnosis.json, the plots and (``export_fmu``) the fitted FMU into ``out_dir``."""
     out = Path(out_dir)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=".hdrive-diagnosis-", dir=out.parent))
-    try:
+    with staged_folder(out, last="diagnosis.md") as stage:
         files = _plots(log, stop, models, stage)
         if export_fmu:
-            from .export import export_fitted_fmu
+            from ..model.export import export_fitted_fmu
 
             fmu = export_fitted_fmu(models[-1].params, stage / "HarmonicDrive_fitted.fmu")
             diag.fmu = str(out / fmu.name)
@@ -152,9 +119,4 @@ def write_diagnosis(diag: Diagnosis, log: DriveLog, stop: int, models: list[Any]
         diag.files["report"] = str(out / "diagnosis.md")
         (stage / "diagnosis.md").write_text(_markdown(diag, files))
         (stage / "diagnosis.json").write_text(json.dumps(diag.to_dict(), indent=2, default=float))
-        out.mkdir(exist_ok=True)
-        for f in stage.iterdir():
-            shutil.move(str(f), out / f.name)
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
     return out

@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .io import DriveLog, LogMeta
-from .params import DriveParams
-from .plant import Plant
+from ..model.params import DriveParams
+from ..model.plant import Plant
+from .logs import DriveLog, LogMeta
 
 
 def default_excitation(params: DriveParams, duration_s: float = 10.0, rate_hz: float = 5000.0) -> np.ndarray:

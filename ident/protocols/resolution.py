@@ -16,15 +16,16 @@ import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Iterator
 
 import numpy as np
 import pandas as pd
 
-from .checks import number, whole
+from ..common.checks import number, whole
+from ..common.plotting import figure, save
+from ..model.params import DriveParams
+from ..model.plant import Plant
 from .controllers import ImpulseController, LinearPD, SettleError
-from .params import DriveParams
-from .plant import Plant
 
 _ZERO_STATE = dict(q_m_start=0.0, q_l_start=0.0, v_m_start=0.0, v_l_start=0.0)
 
@@ -87,28 +88,20 @@ class IncrementStats:
                     mean_m=float(np.mean(self.increments_m)))
 
 
-def _plot_increments(increments_m: np.ndarray, path: str | Path, title: str, xlabel: str) -> Path:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+def plot_increments(increments_m: np.ndarray, path: str | Path, title: str, xlabel: str) -> Path:
+    """Histogram and sequence of arm increments (µm) side by side, written to ``path`` (PNG)."""
     um = np.asarray(increments_m) * 1e6
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+    fig, (ax1, ax2) = figure(1, 2, size=(11, 4))
     ax1.hist(um, bins=50)
-    ax1.set_xlabel("arm increment [um]")
+    ax1.set_xlabel("arm increment [µm]")
     ax1.set_ylabel("count")
-    ax1.axvline(um.max(), color="C3", ls="--", label=f"max {um.max():.4g} um")
+    ax1.axvline(um.max(), color="C3", ls="--", label=f"max {um.max():.4g} µm")
     ax1.legend()
     ax2.plot(np.arange(1, um.size + 1), um, ".", ms=3)
     ax2.set_xlabel(xlabel)
-    ax2.set_ylabel("arm increment [um]")
+    ax2.set_ylabel("arm increment [µm]")
     fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save(fig, path)
 
 
 # -- impulse protocol ---------------------------------------------------------------------------------------
@@ -187,7 +180,7 @@ class ImpulseResolution(IncrementStats):
         """Histogram and increment-vs-pulse-number sequence, PNG."""
         title = (f"impulse control, f_l* = {self.params.f_l_star:.4g}: A_th = {self.threshold_amplitude:.4f}, "
                  f"A_op = {self.operating_amplitude:.4f}, resolution (max) = {self.resolution_m * 1e6:.4g} um")
-        return _plot_increments(self.increments_m, path, title, "pulse number")
+        return plot_increments(self.increments_m, path, title, "pulse number")
 
 
 def find_threshold(plant: Plant, n_pulses: int = 1000, eps1_m: float = 0.1e-6, tol_star: float = 1e-4,
@@ -293,7 +286,7 @@ class LinearResolution(IncrementStats):
     def plot(self, path: str | Path) -> Path:
         title = (f"linear PD, f_l* = {self.params.f_l_star:.4g}: consistent at {self.counts} count(s), "
                  f"resolution (max) = {self.resolution_m * 1e6:.4g} um")
-        return _plot_increments(self.increments_m, path, title, "step number")
+        return plot_increments(self.increments_m, path, title, "step number")
 
 
 def linear_steps(plant: Plant, counts: int, n_steps: int, warmup: int = 20, *, eps1_m: float | None = None,
@@ -344,116 +337,6 @@ def linear_resolution(plant_or_params: Plant | DriveParams | None = None, n_step
 
 
 
-# -- friction sweep (paper section V) -------------------------------------------------------------------------
-def friction_levels(n: int = 25) -> np.ndarray:
-    """The paper's load-friction levels f_l* = 10^(-2 + 2 i/(n-1)), i = 0..n-1 (0.01 ... 1; 0.1 in the middle)."""
-    n = whole("levels", n, 2)
-    return 10.0 ** (-2.0 + 2.0 * np.arange(n) / (n - 1))
-
-
-@dataclass
-class FrictionSweep:
-    """The impulse protocol at every load-friction level. ``results[i]`` belongs to ``f_l_star[i]``."""
-
-    f_l_star: np.ndarray
-    results: list[ImpulseResolution]
-
-    def to_frame(self) -> pd.DataFrame:
-        """One row per level: amplitudes (tau*), increments in um at the arm, the first increment, wall time."""
-        rows = []
-        for f, r in zip(self.f_l_star, self.results):
-            first, median = r.increments_m[0], r.median_m
-            rows.append(dict(f_l_star=f, threshold_amplitude=r.threshold_amplitude,
-                             operating_amplitude=r.operating_amplitude, resolution_um=r.resolution_m * 1e6,
-                             median_um=median * 1e6, min_um=r.min_m * 1e6, std_um=r.std_m * 1e6,
-                             first_increment_um=first * 1e6, first_over_median=first / median if median else np.inf,
-                             n_pulses=r.n_pulses, elapsed_s=r.elapsed_s))
-        return pd.DataFrame(rows)
-
-    def at(self, f_l_star: float) -> ImpulseResolution:
-        """The result at the level nearest to ``f_l_star`` (in log scale)."""
-        return self.results[int(np.argmin(abs(np.log(self.f_l_star) - math.log(f_l_star))))]
-
-    def trend(self, column: str = "resolution_um") -> dict[str, float]:
-        """Least-squares line ``column = slope * f_l* + intercept`` with R^2 (the paper says: linear in f_l*)."""
-        df = self.to_frame()
-        x, y = df["f_l_star"].to_numpy(), df[column].to_numpy()
-        slope, intercept = np.polyfit(x, y, 1)
-        resid = y - (slope * x + intercept)
-        ss_tot = float(np.sum((y - y.mean()) ** 2))
-        r2 = 1.0 - float(np.sum(resid**2)) / ss_tot if ss_tot > 0 else float("nan")
-        return dict(slope_um=float(slope), intercept_um=float(intercept), r2=r2)
-
-    def plot(self, out_dir: str | Path, at_f_l_star: float = 0.1) -> dict[str, Path]:
-        """The four plots of the paper's section V as PNGs in ``out_dir``."""
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        df, ref = self.to_frame(), self.at(at_f_l_star)
-        um = ref.increments_m * 1e6
-        paths = {}
-
-        def save(fig, name: str) -> None:
-            fig.tight_layout()
-            paths[name] = out / f"{name}.png"
-            fig.savefig(paths[name], dpi=120)
-            plt.close(fig)
-
-        fig, ax = plt.subplots(figsize=(6, 4))
-        ax.hist(um, bins=50)
-        ax.set(xlabel="arm increment [um]", ylabel="pulses",
-               title=f"Histogram, f_l* = {ref.params.f_l_star:.3g}, N = {um.size}")
-        save(fig, "histogram_fl0.1")
-        fig, ax = plt.subplots(figsize=(6, 4))
-        ax.plot(np.arange(1, um.size + 1), um, ".", ms=3)
-        ax.set(xlabel="pulse number", ylabel="arm increment [um]",
-               title=f"Increment vs pulse number, f_l* = {ref.params.f_l_star:.3g}")
-        save(fig, "sequence_fl0.1")
-        fig, ax = plt.subplots(figsize=(6, 4))
-        for col, label in (("resolution_um", "max (resolution)"), ("median_um", "median"), ("min_um", "min")):
-            ax.plot(df["f_l_star"], df[col], "o-", ms=3, label=label)
-        t = self.trend()
-        ax.plot(df["f_l_star"], t["slope_um"] * df["f_l_star"] + t["intercept_um"], "k--", lw=0.8,
-                label=f"linear fit of max: slope {t['slope_um']:.3g} um, R^2 {t['r2']:.2f}")
-        ax.set(xlabel="load friction level f_l*", ylabel="arm increment [um]", title="Increment vs friction level")
-        ax.legend(fontsize=8)
-        save(fig, "delta_vs_friction")
-        fig, ax = plt.subplots(figsize=(6, 4))
-        ax.plot(df["f_l_star"], df["std_um"], "o-", ms=3)
-        ax.set(xlabel="load friction level f_l*", ylabel="std of increments [um]",
-               title="Standard deviation vs friction level")
-        save(fig, "std_vs_friction")
-        return paths
-
-
-def _impulse_task(task: tuple[DriveParams, int, dict[str, Any]]) -> ImpulseResolution:
-    params, n_pulses, kw = task
-    return impulse_resolution(params, n_pulses, **kw)
-
-
-def friction_sweep(params: DriveParams | None = None, levels: int | Sequence[float] = 25, n_pulses: int = 1000,
-                   *, scheduler: str | None = None, workers: int | None = None, progress: bool = False,
-                   **protocol: Any) -> FrictionSweep:
-    """The impulse protocol at each load-friction level (f_l* = f_l/f_m), other parameters from ``params``.
-
-    Levels run in parallel on Dask (``ident.distributed.run_batch``: local worker processes by default, the
-    cluster at ``scheduler`` if given, serial with ``workers=0``); the results do not depend on where they ran.
-    """
-    from .distributed import run_batch
-
-    base = params or DriveParams()
-    f = friction_levels(levels) if isinstance(levels, (int, np.integer)) else np.asarray(levels, dtype=float)
-    if f.size == 0 or not np.all(np.isfinite(f) & (f >= 0)):
-        raise ValueError(f"friction levels must be finite numbers >= 0, got {levels!r}")
-    n_pulses = whole("n_pulses", n_pulses, 1)
-    tasks = [(base.with_values(f_l_star=float(x)), n_pulses, protocol) for x in f]
-    results = run_batch(_impulse_task, tasks, scheduler=scheduler, workers=workers, progress=progress,
-                        desc="friction levels")
-    return FrictionSweep(f, results)
-
-__all__ = ["ImpulseResolution", "LinearResolution", "NoConsistentStep", "SettleError", "ThresholdNotFound",
-           "FrictionSweep", "find_threshold", "friction_levels", "friction_sweep", "impulse_experiment", "impulse_resolution", "linear_resolution", "linear_steps"]
+__all__ = ["ImpulseResolution", "IncrementStats", "LinearResolution", "NoConsistentStep", "SettleError",
+           "ThresholdNotFound", "find_threshold", "impulse_experiment", "impulse_resolution", "linear_resolution",
+           "linear_steps", "plot_increments"]

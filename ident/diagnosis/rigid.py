@@ -2,17 +2,17 @@
 EMPS benchmark): fit a Coulomb-only rigid model, localise its residuals, name the missing friction effect, add it,
 refit, repeat until no candidate improves the held-back fit significantly.
 
-**Models.** Every model is the effect library's rigid force (:func:`ident.effects.rigid_force`, built with CasADi SX
-symbols) fitted by the equation-error IDIM-LS pipeline of :mod:`ident.emps`: zero-phase Butterworth position,
+**Models.** Every model is the effect library's rigid force (:func:`ident.model.effects.rigid_force`, built with CasADi SX
+symbols) fitted by the equation-error IDIM-LS pipeline of :mod:`ident.fitting.rigid`: zero-phase Butterworth position,
 central-difference velocity and acceleration, the first ``n_border - 1`` samples dropped, parallel decimation of
 every regressor column and of the force (MATLAB ``decimate``). EMPS logs (controller data in ``meta_extra``) use
-the EMPS settings of :func:`ident.emps.identify_rigid`; other logs the generic rule
-(:func:`ident.emps.generic_idim_settings`) and only the rows where the axis clearly slides
-(:func:`ident.emps._moving_mask`). The base model is ``tau = M q'' + Fc sgn(q') + offset``.
+the EMPS settings of :func:`ident.fitting.rigid.identify_rigid`; other logs the generic rule
+(:func:`ident.fitting.rigid.generic_idim_settings`) and only the rows where the axis clearly slides
+(:func:`ident.fitting.rigid.moving_mask`). The base model is ``tau = M q'' + Fc sgn(q') + offset``.
 
 For fixed Stribeck parameters the force is linear in the model's *coordinates* (M, Fc or Fc+ / Fc-, Fv or Fv+ /
 Fv-, offset); the regressor columns are the CasADi Jacobian of ``rigid_force`` with respect to them, evaluated on
-the raw rows and decimated. The coordinates are solved by CasADi + IPOPT (:func:`ident.emps._solve_ls_casadi`) and
+the raw rows and decimated. The coordinates are solved by CasADi + IPOPT (:func:`ident.fitting.rigid.solve_ls_casadi`) and
 checked against ``numpy.linalg.lstsq``. Stribeck's velocity (and, with asymmetric friction, its ratio) enter
 nonlinearly: they are profiled (grid of log velocity, bounded 1-D search of the ratio, LS for the rest).
 
@@ -35,21 +35,21 @@ nonlinearly: they are profiled (grid of log velocity, bounded 1-D search of the 
   spectrum and reported in ``unexplained`` with that evidence, never as a named effect.
 
 **Held-back data and the acceptance rule.** The ``holdout`` log (processed with the training fit's settings, as
-:func:`ident.emps.validate_rigid` does) or else the last 30 % of the log. Each candidate is refitted on the
+:func:`ident.fitting.rigid.validate_rigid` does) or else the last 30 % of the log. Each candidate is refitted on the
 training data; its score is ``SSE_heldback(without) / SSE_heldback(with)``. It is accepted when all three hold:
 the held-back SSE falls by more than 2 % (score > 1/0.98), a one-sided Diebold-Mariano test of the held-back
 squared errors (Newey-West variance) gives p < 0.01, and the training BIC falls. The best-scoring accepted candidate
 is added; the runner-up and the margin (winner's score / runner-up's) are recorded. The loop stops when no
 candidate passes.
 
-**Uncertainty**: the Newey-West (HAC) sandwich of :mod:`ident.emps` on the Jacobian of the decimated prediction,
+**Uncertainty**: the Newey-West (HAC) sandwich of :mod:`ident.fitting.rigid` on the Jacobian of the decimated prediction,
 95 % normal intervals, delta method for derived numbers (Fv as the mean of Fv+ and Fv-, |a|, s).
 """
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -60,21 +60,26 @@ import scipy.optimize as so
 import scipy.signal as sg
 import scipy.stats
 
-from .diagnosis import Diagnosis, DiagnosisStep, NamedEffect
-from .effects import EFFECTS, rigid_force
-from .emps import (PAPER, IdimSettings, _decimate, _filtered_states, _hac_covariance, _moving_mask,
-                   _solve_ls_casadi, generic_idim_settings, identify_rigid)
-from .io import DriveLog, LogError
+from ..common.markdown import md_table
+from ..common.plotting import figure, save
+from ..fitting.logs import DriveLog, LogError
+from ..fitting.rigid import (
+    IdimSettings,
+    decimate,
+    filtered_states,
+    generic_idim_settings,
+    hac_covariance,
+    identify_rigid,
+    moving_mask,
+    solve_ls_casadi,
+)
+from ..model.effects import EFFECTS, rigid_force
+from .result import Diagnosis, DiagnosisStep, NamedEffect, PublishedReference
 
-__all__ = ["CANDIDATES", "PAPER_ASYM", "RULE", "diagnose_rigid", "diagnose_emps"]
+__all__ = ["CANDIDATES", "RULE", "diagnose_rigid"]
 
 #: Candidate effects of the rigid model, in library order (flexibility is tested by its signature only).
 CANDIDATES: tuple[str, ...] = tuple(n for n, e in EFFECTS.items() if "rigid" in e.applies_to and e.fit_vars)
-
-#: The PDF's section 4.2 (Script_IDIM_LS_Asym_Fric): M, Fv+, Fc+, Fv-, Fc-, no offset.
-PAPER_ASYM: dict[str, float] = {"M": 95.1540, "Fv_pos": 166.7061, "Fc_pos": 20.1440, "Fv_neg": 240.4236,
-                                "Fc_neg": 20.6277, "relative_error_pct": 3.1117, "error_norm": 82.8778,
-                                "cond": 26.0197}
 
 #: Acceptance rule of a candidate (see the module docstring).
 RULE: dict[str, float] = {"min_heldback_sse_drop": 0.02, "dm_p_max": 0.01, "max_bic_change": 0.0,
@@ -105,20 +110,20 @@ class _Proc:
     source: str
 
     def dec(self, x: np.ndarray) -> np.ndarray:
-        return _decimate(x, self.settings.decim_factor)
+        return decimate(x, self.settings.decim_factor)
 
 
 def _process(log: DriveLog, s: IdimSettings, generic: bool) -> _Proc:
     if log.n < 4 * s.n_border:
         raise LogError(f"{log.source}: {log.n} samples are too few for the IDIM pipeline (need {4 * s.n_border})")
-    q_f, dq_f, ddq_f = _filtered_states(log.motor_pos_rad, s)
+    q_f, dq_f, ddq_f = filtered_states(log.motor_pos_rad, s)
     k0 = s.n_border - 1
     a_raw, v_raw, y_raw = ddq_f[k0:], dq_f[k0:], np.asarray(log.motor_torque_Nm[k0:], dtype=float)
     r = s.decim_factor
     td = log.time_s[k0:]
     nout = -(-td.size // r)
     t = td[r - (r * nout - td.size) - 1::r]
-    dec = (lambda x: _decimate(x, r))
+    dec = (lambda x: decimate(x, r))
     v = dec(v_raw)
     pulses = None
     if "pulses_N" in log.extra:
@@ -129,7 +134,7 @@ def _process(log: DriveLog, s: IdimSettings, generic: bool) -> _Proc:
         near = np.convolve(edge, np.ones(2 * r + 1), mode="same") > 0
         idx = np.arange(td.size)[r - (r * nout - td.size) - 1::r]
         pulses = near[idx]
-    keep = _moving_mask(v) if generic else np.ones(v.size, dtype=bool)
+    keep = moving_mask(v) if generic else np.ones(v.size, dtype=bool)
     if generic and keep.sum() < 20:
         raise RuntimeError(f"{log.source}: the axis barely slides in this log (fewer than 20 sliding rows): the "
                            "rigid model's inertia and friction are not excited")
@@ -195,7 +200,7 @@ def _library_theta(spec: _Spec, b: dict[str, Any], v: Any, s: Any, vs: Any) -> d
 
 
 def _force_function(spec: _Spec) -> ca.Function:
-    """(a, v, coords, s, v_s) -> (force, d force / d coords) from ``ident.effects.rigid_force`` (SX)."""
+    """(a, v, coords, s, v_s) -> (force, d force / d coords) from ``ident.model.effects.rigid_force`` (SX)."""
     key = tuple(spec.coords())
     if key not in _FUNCS:
         a, v, s, vs = ca.SX.sym("a"), ca.SX.sym("v"), ca.SX.sym("s"), ca.SX.sym("vs")
@@ -297,7 +302,7 @@ def _linear_fit(spec: _Spec, p: _Proc, X: np.ndarray, s: float, vs: float, at_bo
         raise RuntimeError(f"{p.source}: the regressors of {'+'.join(sorted(spec.effects)) or 'the base model'} "
                            "are collinear on this log (it does not excite them separately)")
     ref = np.linalg.lstsq(X, y, rcond=None)[0]
-    beta, info = _solve_ls_casadi(X, y)
+    beta, info = solve_ls_casadi(X, y)
     e = y - X @ beta
     # Jacobian of the prediction for the covariance: coordinates, then Stribeck's nonlinear parameters
     J, names = X, list(spec.coords())
@@ -308,7 +313,7 @@ def _linear_fit(spec: _Spec, p: _Proc, X: np.ndarray, s: float, vs: float, at_bo
         J = np.column_stack([X, d_s, d_lv])
         names += ["stribeck_ratio", "log_stribeck_velocity"]
     try:
-        cov, lag, _ = _hac_covariance(J, e)
+        cov, lag, _ = hac_covariance(J, e)
     except np.linalg.LinAlgError:
         cov, lag = np.full((J.shape[1], J.shape[1]), np.nan), -1
     return _Fit(spec, list(spec.coords()), beta, ref, s, vs, X, e, y, cov, names, lag, info, at_bound)
@@ -547,14 +552,9 @@ def _spectrum_check(fit: _Fit, p: _Proc, data: str) -> tuple[dict[str, Any] | No
 
 def _plots(out: Path, base: _Fit, final: _Fit, p: _Proc, ph: _Proc, final_h: np.ndarray, base_h: np.ndarray,
            spectra: list[dict[str, Any]], unit_f: str, unit_v: str) -> dict[str, str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     files = {}
     t, v = p.t[p.keep], p.v[p.keep]
-    fig, ax = plt.subplots(2, 3, figsize=(15, 8))
+    fig, ax = figure(2, 3, size=(15, 8))
     for row, (fit, lab) in enumerate(((base, "base (Coulomb + offset)"), (final, "final"))):
         ax[row, 0].plot(t, fit.e, "k", lw=0.6)
         ax[row, 0].set(title=f"{lab}: residual vs time (training)", xlabel="t [s]", ylabel=f"residual [{unit_f}]")
@@ -567,12 +567,10 @@ def _plots(out: Path, base: _Fit, final: _Fit, p: _Proc, ph: _Proc, final_h: np.
         ax[row, 2].legend(fontsize=8)
         for a_ in ax[row]:
             a_.grid(True)
-    fig.tight_layout()
-    fig.savefig(out / "rigid_residuals.png", dpi=100)
-    plt.close(fig)
+    save(fig, out / "rigid_residuals.png")
     files["residuals_png"] = str(out / "rigid_residuals.png")
 
-    fig, ax = plt.subplots(1, 3, figsize=(15, 4.5))
+    fig, ax = figure(1, 3, size=(15, 4.5))
     th, vh, yh = ph.t[ph.keep], ph.v[ph.keep], ph.y[ph.keep]
     ax[0].plot(th, yh, "b", lw=1, label="measured")
     ax[0].plot(th, yh - final_h, "--r", lw=0.8, label="final model")
@@ -590,16 +588,16 @@ def _plots(out: Path, base: _Fit, final: _Fit, p: _Proc, ph: _Proc, final_h: np.
     ax[2].legend(fontsize=8)
     for a_ in ax:
         a_.grid(True)
-    fig.tight_layout()
-    fig.savefig(out / "rigid_heldback.png", dpi=100)
-    plt.close(fig)
+    save(fig, out / "rigid_heldback.png")
     files["heldback_png"] = str(out / "rigid_heldback.png")
     return files
 
 
 # ------------------------------------------------------------------------------------------ workflow -----------
 
-def _is_emps(log: DriveLog) -> bool:
+def _is_closed_loop(log: DriveLog) -> bool:
+    """A closed-loop linear-axis log with the position loop's constants (EMPS-like): its IDIM settings follow the
+    identified closed loop."""
     return {"gtau", "kp", "kv"} <= set(log.meta_extra) and "qg" in log.extra and log.kind == "linear"
 
 
@@ -611,12 +609,13 @@ def _say(progress: bool, msg: str) -> None:
 
 
 def diagnose_rigid(log: DriveLog, *, holdout: DriveLog | None = None, out_dir: str | Path | None = None,
-                   progress: bool = False) -> Diagnosis:
+                   progress: bool = False, reference: PublishedReference | None = None) -> Diagnosis:
     """Run the rigid-model discrepancy workflow on ``log`` (see the module docstring); ``holdout`` is the
-    held-back log (else the last 30 % of ``log``). Writes ``rigid_diagnosis.md`` and plots into ``out_dir``."""
+    held-back log (else the last 30 % of ``log``). Writes ``rigid_diagnosis.md`` and plots into ``out_dir``;
+    ``reference``: published figures of this data set to print beside the diagnosis's."""
     t0 = time.perf_counter()
     notes: list[str] = []
-    emps = _is_emps(log)
+    emps = _is_closed_loop(log)
     if log.n < 200:
         raise LogError(f"{log.source}: {log.n} samples are too few for the rigid diagnosis (need a few hundred)")
     train_log, held_log = log, holdout
@@ -771,7 +770,7 @@ def diagnose_rigid(log: DriveLog, *, holdout: DriveLog | None = None, out_dir: s
         out.mkdir(parents=True, exist_ok=True)
         files.update(_plots(out, fits[0], final, p, ph, cur_h, held[0], spectra, unit_f, unit_v))
         md = _report(log, held_log, emps, steps, named, unexplained, table_base, table_final, table_held, final,
-                     notes, s)
+                     notes, s, reference)
         (out / "rigid_diagnosis.md").write_text(md)
         files["report"] = str(out / "rigid_diagnosis.md")
     return Diagnosis(model="rigid", steps=steps, effects=named, unexplained=unexplained,
@@ -779,55 +778,27 @@ def diagnose_rigid(log: DriveLog, *, holdout: DriveLog | None = None, out_dir: s
                      notes=notes)
 
 
-def diagnose_emps(data_dir: str | Path | None = None, out_dir: str | Path | None = None,
-                  progress: bool = False) -> Diagnosis:
-    """The rigid diagnosis of DATA_EMPS.mat with DATA_EMPS_PULSES.mat held back."""
-    from .emps import _data_dir, load_emps
-
-    d = _data_dir(data_dir)
-    return diagnose_rigid(load_emps(d / "DATA_EMPS.mat"), holdout=load_emps(d / "DATA_EMPS_PULSES.mat"),
-                          out_dir=out_dir, progress=progress)
-
-
 # ------------------------------------------------------------------------------------------- report -------------
 
-def _md(df: pd.DataFrame, cols: list[str], fmt: dict[str, str]) -> str:
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for _, r in df.iterrows():
-        cells = []
-        for c in cols:
-            x = r[c]
-            cells.append(format(x, fmt[c]) if c in fmt and isinstance(x, (int, float, np.floating)) and
-                         not (isinstance(x, float) and math.isnan(x)) else str(x))
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+def _model_label(spec: _Spec) -> str:
+    """The model's coordinates as the report names them (and a published reference keys its figures)."""
+    label = "M, Fc+, Fc-" if spec.asym else "M, Fc, offset"
+    if spec.viscous:
+        label += ", Fv+, Fv-" if spec.asym else ", Fv"
+    if spec.stribeck:
+        label += ", Stribeck (s, v_s)"
+    return label
 
 
-def _report(log: DriveLog, held: DriveLog, emps: bool, steps: list[DiagnosisStep], named: list[NamedEffect],
-            unexplained: list[dict[str, Any]], tb: pd.DataFrame, tf: pd.DataFrame, th: pd.DataFrame, final: _Fit,
-            notes: list[str], s: IdimSettings) -> str:
-    paper_rows = emps and Path(log.source).name == "DATA_EMPS.mat"
-    paper_held = paper_rows and Path(held.source).name == "DATA_EMPS_PULSES.mat"
+def _steps_md(steps: list[DiagnosisStep], reference: PublishedReference | None) -> str:
     rows = []
-    model = "M, Fc, offset"
+    spec = _Spec(frozenset())
     for i, st in enumerate(steps):
-        if st.added == "viscous_motor":
-            model += ", Fv"
-        elif st.added == "asymmetric_friction":
-            model = model.replace("Fc, offset", "Fc+, Fc-").replace("Fv", "Fv+, Fv-") if "Fv" in model else \
-                model.replace("Fc, offset", "Fc+, Fc-")
-        elif st.added == "stribeck":
-            model += ", Stribeck (s, v_s)"
-        paper_train = paper_ctv = ""
-        if paper_rows:
-            if model == "M, Fc, offset, Fv":
-                paper_train = f"{PAPER['relative_error_pct']:.4f}"
-                paper_ctv = f"{PAPER['ctv']['relative_error_pct']:.4f}" if paper_held else ""
-            elif model == "M, Fc+, Fc-, Fv+, Fv-":
-                paper_train, paper_ctv = f"{PAPER_ASYM['relative_error_pct']:.4f}", "not published"
-            else:
-                paper_train = paper_ctv = "-"
-        rows.append((i, st.added or "(base)", model, f"{st.relative_error_pct:.4f}", paper_train,
+        if st.added is not None:
+            spec = spec.add(st.added)
+        label = _model_label(spec)
+        paper_train, paper_ctv = ("", "") if reference is None else reference.step_errors.get(label, ("-", "-"))
+        rows.append((i, st.added or "(base)", label, f"{st.relative_error_pct:.4f}", paper_train,
                      f"{st.extra['heldback_relative_error_pct']:.4f}", paper_ctv,
                      "" if st.score is None else f"{st.score:.3f}", f"{st.extra['bic']:.1f}",
                      "" if st.extra.get("dm_p") is None else f"{st.extra['dm_p']:.2g}",
@@ -836,48 +807,42 @@ def _report(log: DriveLog, held: DriveLog, emps: bool, steps: list[DiagnosisStep
                      str(st.extra.get("runner_up"))))
     hdr = ["step", "added", "model", "training rel. error [%]", "paper", "held-back rel. error [%]",
            "paper (CTV on PULSES)", "score", "BIC", "DM p", "runner-up (margin)"]
-    steps_md = "\n".join(["| " + " | ".join(hdr) + " |", "|" + "---|" * len(hdr)] +
-                         ["| " + " | ".join(str(c) for c in r) + " |" for r in rows])
+    return md_table(pd.DataFrame(rows, columns=hdr))
+
+
+def _report(log: DriveLog, held: DriveLog, emps: bool, steps: list[DiagnosisStep], named: list[NamedEffect],
+            unexplained: list[dict[str, Any]], tb: pd.DataFrame, tf: pd.DataFrame, th: pd.DataFrame, final: _Fit,
+            notes: list[str], s: IdimSettings, reference: PublishedReference | None) -> str:
+    steps_md = _steps_md(steps, reference)
     cand_md = []
     for i, st in enumerate(steps):
         if st.candidates is not None and not st.candidates.empty:
-            cand_md.append(f"Candidates tried on top of step {i} ({st.added or 'base'}):\n\n" + _md(
-                st.candidates, ["effect", "score", "training_relative_error_pct", "heldback_relative_error_pct",
-                                "delta_bic", "dm_p", "accepted", "why"],
+            cand_md.append(f"Candidates tried on top of step {i} ({st.added or 'base'}):\n\n" + md_table(
+                st.candidates[["effect", "score", "training_relative_error_pct", "heldback_relative_error_pct",
+                               "delta_bic", "dm_p", "accepted", "why"]],
                 {"score": ".4f", "training_relative_error_pct": ".4f", "heldback_relative_error_pct": ".4f",
                  "delta_bic": ".1f", "dm_p": ".2g"}))
     eff_md = "\n".join(f"- **{e.name}**: {e.magnitude:.5g} {e.unit}, 95 % CI [{e.ci95[0]:.5g}, {e.ci95[1]:.5g}] "
                        f"(HAC); runner-up {e.runner_up}, margin {e.margin if e.margin is None else round(e.margin, 3)}."
                        f" Evidence: {e.evidence}" for e in named) or "- none"
-    par = final.params()
-    par_md = "\n".join(f"| {k} | {v:.6g} |" + (f" {PAPER_ASYM[k]:.4f} |" if paper_rows and k in PAPER_ASYM and
-                                               final.spec.asym and final.spec.viscous and not final.spec.stribeck
-                                               else " |") for k, v in par.items())
+    published = reference.params if reference is not None and _model_label(final.spec) == reference.params_model \
+        else {}
+    par_md = md_table(pd.DataFrame([(k, f"{v:.6g}", f"{published[k]:.4f}" if k in published else "")
+                                    for k, v in final.params().items()],
+                                   columns=["parameter", "value", "paper (asymmetric model)"]))
     regcols = ["regime", "n", "share_samples_pct", "share_energy_pct", "energy_ratio", "bias", "bias_t", "rms"]
     regfmt = {"share_samples_pct": ".1f", "share_energy_pct": ".1f", "energy_ratio": ".2f", "bias": ".3g",
               "bias_t": ".1f", "rms": ".3g"}
     unx = "\n".join(f"- **{u['regime']}**" + (f" ({u['share_pct']} % of the residual energy)" if u.get("share_pct")
                                                is not None else "") + f": {u['detail']}" for u in unexplained) or \
         "- none: no regime holds residual energy well above its share with a significant bias."
-    paper_md = ""
-    if paper_rows:
-        paper_md = f"""
-## Against the paper (Janot, Gautier, Brunot, EMPS_Description.pdf)
-
-- IDIM-LS, `M, Fv, Fc, offset`: paper {PAPER['relative_error_pct']} % (DATA_EMPS), cross-test on DATA_EMPS_PULSES
-  {PAPER['ctv']['relative_error_pct']} %.
-- Section 4.2, `Script_IDIM_LS_Asym_Fric`: `M, Fv+, Fc+, Fv-, Fc-` (eq. 12, no offset): paper
-  {PAPER_ASYM['relative_error_pct']} % (M {PAPER_ASYM['M']}, Fv+ {PAPER_ASYM['Fv_pos']}, Fc+ {PAPER_ASYM['Fc_pos']},
-  Fv- {PAPER_ASYM['Fv_neg']}, Fc- {PAPER_ASYM['Fc_neg']}); the PDF gives no cross-test figure for it.
-- The PDF's closed-loop simulation errors on DATA_EMPS_PULSES (force {PAPER['sim_pulses']['force_pct']} %,
-  acceleration {PAPER['sim_pulses']['acceleration_pct']} %) are attributed there to "a flexibility that was
-  accidentally excited by the pulses".
-"""
+    paper_md = "" if reference is None else (f"\n## Against the paper ({reference.citation})\n\n" +
+                                             "\n".join(f"- {n}" for n in reference.notes) + "\n")
     return f"""# Rigid-model diagnosis: {Path(log.source).name}
 
-Training: `{log.source}`; held-back: `{held.source}`. Equation-error IDIM pipeline (`ident/emps.py`): w_dyn =
+Training: `{log.source}`; held-back: `{held.source}`. Equation-error IDIM pipeline (`ident/fitting/rigid.py`): w_dyn =
 {s.f_dyn_hz:.4g} Hz ({s.f_dyn_source}), Butterworth {s.butter_order} at {s.butter_cutoff_hz:.4g} Hz, decimation by
-{s.decim_factor}{'' if emps else ', sliding rows only'}. Every model is `ident.effects.rigid_force` (CasADi SX); the
+{s.decim_factor}{'' if emps else ', sliding rows only'}. Every model is `ident.model.effects.rigid_force` (CasADi SX); the
 coordinates are solved by IPOPT and checked against lstsq (largest relative difference in the final model
 {final.casadi_vs_lstsq:.1e}).
 
@@ -898,23 +863,21 @@ added, and the loop stops when none passes.
 
 ## Final parameters
 
-| parameter | value | paper (asymmetric model) |
-|---|---|---|
 {par_md}
 {paper_md}
 ## Where the models disagree (ranked by residual energy share minus row share)
 
 Base model, training:
 
-{_md(tb, regcols, regfmt)}
+{md_table(tb[regcols], regfmt)}
 
 Final model, training:
 
-{_md(tf, regcols, regfmt)}
+{md_table(tf[regcols], regfmt)}
 
 Final model, held-back:
 
-{_md(th, regcols, regfmt)}
+{md_table(th[regcols], regfmt)}
 
 ![residuals](rigid_residuals.png)
 

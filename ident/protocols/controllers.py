@@ -12,12 +12,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from .checks import number, whole
-from .params import DriveParams
-from .plant import SettleError
+from ..common.checks import number, whole
+from ..model.params import DriveParams
+from ..model.plant import SettleError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .plant import Plant, Sample
+    from ..model.plant import Plant, Sample
 
 
 class ImpulseController:

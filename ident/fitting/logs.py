@@ -15,15 +15,15 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import re
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import pandas as pd
+
+from ..common.output import atomic_write
 
 COLUMNS = ("time_s", "motor_torque_Nm", "motor_pos_rad", "load_pos_rad")
 META_KEYS = ("r", "J_m_kgm2", "f_m_Nm", "arm_length_m", "encoder_counts_per_rev", "sample_rate_hz")
@@ -322,10 +322,10 @@ def write_log(log: DriveLog, path: str | Path) -> tuple[Path, Path]:
     content = _sidecar_content(log)
     frame = _frame_to_write(log)
     if _is_parquet(path):
-        _atomic_write(path, lambda tmp: frame.to_parquet(tmp, index=False))
+        atomic_write(path, lambda tmp: frame.to_parquet(tmp, index=False))
     else:
-        _atomic_write(path, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.17g"))
-    _atomic_write(sidecar, lambda tmp: tmp.write_text(json.dumps(content, indent=2, allow_nan=False) + "\n"))
+        atomic_write(path, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.17g"))
+    atomic_write(sidecar, lambda tmp: tmp.write_text(json.dumps(content, indent=2, allow_nan=False) + "\n"))
     return path, sidecar
 
 
@@ -354,17 +354,3 @@ def _sidecar_content(log: DriveLog) -> dict[str, Any]:
         content["meta_extra"] = dict(log.meta_extra)
     _parse_meta(content, f"write_log({log.source}): meta")
     return content
-
-
-def _atomic_write(path: Path, write: Callable[[Path], object]) -> None:
-    """``write`` a temporary file beside ``path``, then rename it onto ``path`` (never a half-written file)."""
-    fd, name = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=f".tmp-{path.name}")
-    os.close(fd)
-    tmp = Path(name)
-    try:
-        write(tmp)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise

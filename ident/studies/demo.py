@@ -13,8 +13,9 @@ from pathlib import Path
 import pandas as pd
 from tqdm import tqdm
 
-from .params import DriveParams
-from .plant import COLUMN_UNITS, Plant, Sample
+from ..common.plotting import figure, save
+from ..model.params import DriveParams
+from ..model.plant import COLUMN_UNITS, Plant, Sample
 
 
 @dataclass
@@ -31,27 +32,18 @@ class PulseTrainResult:
         return self.samples
 
     def plot(self, path: str | Path) -> Path:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
         df = self.samples
-        fig, (ax1, ax2, ax3) = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
+        fig, (ax1, ax2, ax3) = figure(3, 1, size=(9, 8), sharex=True)
         ax1.step(df["time_s"], df["motor_torque_Nm"] * 1e3, where="post")
         ax1.set_ylabel("motor torque [mN m]")
         ax2.plot(df["time_s"], df["arm_position_m"] * 1e6, label="arm tip")
-        ax2.set_ylabel("arm position [um]")
+        ax2.set_ylabel("arm position [µm]")
         ax3.step(df["time_s"], df["encoder_count"], where="post", color="C2")
         ax3.set_ylabel("motor encoder [counts]")
         ax3.set_xlabel("time [s]")
         fig.suptitle(f"Nominal drive, {len(self.increments_um)} pulses of tau* = {self.amplitude_star:g} "
                      f"for {self.width_s * 1e3:g} ms (f_l* = {self.params.f_l_star:g})")
-        fig.tight_layout()
-        path = Path(path)
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
-        return path
+        return save(fig, path)
 
 
 def pulse_train(params: DriveParams | None = None, *, amplitude_star: float = 3.0, width_s: float = 1e-3,

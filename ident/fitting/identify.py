@@ -27,15 +27,17 @@ import math
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 import pandas as pd
 from scipy.signal import savgol_filter
 
-from .io import DriveLog, LogError
-from .params import DriveParams
-from .plant import Plant, PlantError
+from ..common.plotting import figure, save
+from ..model.params import DriveParams
+from ..model.plant import Plant, PlantError
+from .logs import DriveLog, LogError
 
 NAMES = ("K_star", "J_l_star", "f_l_star")
 BOUNDS = {"K_star": (1e3, 1e9), "J_l_star": (10.0, 1e6), "f_l_star": (1e-4, 100.0)}
@@ -162,6 +164,10 @@ class OutputError:
             self._cache[key] = np.concatenate([(q_l - self.y_l) / self.sigma_l, (q_m - self.y_m) / self.sigma_m])
         return self._cache[key]
 
+    def clear_cache(self) -> None:
+        """Forget the cached simulations (a grid visits each point once; keeping them only costs memory)."""
+        self._cache.clear()
+
     def cost(self, theta: np.ndarray) -> float:
         """Sum of squared residuals, for grids and scans: inf where the FMU cannot simulate ``theta`` (a grid corner
         can make the state overflow; measured: a hardening grid point in a from-scratch candidate). Inside IPOPT
@@ -204,7 +210,7 @@ class OutputError:
         self.plant.close()
 
 
-def _casadi_fit(problem: OutputError, theta0: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+def fit_ipopt(problem: OutputError, theta0: np.ndarray, lower: np.ndarray, upper: np.ndarray,
                 max_iter: int = 40, max_cpu_time: float = 1e6) -> tuple[np.ndarray, dict[str, Any]]:
     """min 0.5 |r(theta)|^2 / m with IPOPT; r is the FMU through a CasADi callback, Hessian Gauss-Newton."""
     import casadi as ca
@@ -379,14 +385,10 @@ class TwoInertiaFit:
                 "load_offset_rad": self.load_offset_rad, "sigma_load_rad": self.sigma_load_rad,
                 "elapsed_s": self.elapsed_s}
 
-    def plot(self, path) -> Any:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
+    def plot(self, path: str | Path) -> Path:
+        """Measured vs fitted load angle and the residual, as a PNG at ``path``."""
         sim = self.simulated
-        fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+        fig, (a1, a2) = figure(2, 1, size=(10, 6), sharex=True)
         a1.plot(sim["time_s"], sim["load_measured"] * 1e6, lw=0.6, label="measured")
         a1.plot(sim["time_s"], sim["load_model"] * 1e6, lw=0.6, label="fitted model (FMU)")
         a1.set_ylabel("load angle [urad]")
@@ -394,13 +396,10 @@ class TwoInertiaFit:
         a2.plot(sim["time_s"], (sim["load_model"] - sim["load_measured"]) * 1e9, lw=0.5)
         a2.set_ylabel("residual [nrad]")
         a2.set_xlabel("time [s]")
-        fig.tight_layout()
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
-        return path
+        return save(fig, path)
 
 
-def _covariances(problem: OutputError, theta: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def covariances(problem: OutputError, theta: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     J = problem.jacobian(theta)
     r = problem.residuals(theta)
     info = J.T @ J
@@ -443,7 +442,7 @@ def _scale_scan(problem: OutputError, theta: np.ndarray, lo: np.ndarray, hi: np.
             cost = problem.cost(cand)
             if cost < best_cost:
                 best, best_cost = cand, cost
-        problem._cache.clear()
+        problem.clear_cache()
 
     # scale and frequency together (they trade off in the both-slipping phases), then the friction
     scan([np.array([ln_a + ln_c, ln_a, ln_a, 0.0]) for ln_a in np.log(np.geomspace(1 / span_J, span_J, 13))
@@ -474,7 +473,7 @@ def identify(log: DriveLog, *, model: str = "two-inertia", progress: bool = Fals
              growth: float = 1.3) -> TwoInertiaFit:
     """Estimate K*, J_l*, f_l* (two-inertia model) or the rigid model (``model="rigid"``) from ``log``."""
     if model == "rigid":
-        from .emps import identify_rigid
+        from .rigid import identify_rigid
 
         return identify_rigid(log)  # type: ignore[return-value]
     if model != "two-inertia":
@@ -534,10 +533,10 @@ def _first_stage(log: DriveLog, base: DriveParams, start: dict[str, float], stop
                         th = np.clip(np.concatenate([_theta(base, J, start["w_l2"] * wm,
                                                             start["f_l_over_J_l"] * fm), row]), lo, hi)
                         grid.append((first.cost(th), tuple(th)))
-                        first._cache.clear()
+                        first.clear_cache()
         grid.sort()
         start.update(zip(NAMES, map(float, np.exp(np.array(grid[0][1][:3])))))
-        fits = [_casadi_fit(first, np.array(th), lo, hi, max_iter) for _, th in grid[:3]]
+        fits = [fit_ipopt(first, np.array(th), lo, hi, max_iter) for _, th in grid[:3]]
         theta, info = min(fits, key=lambda f: f[1]["cost"])
         stage = {"window_s": stop / log.meta.sample_rate_hz, **info, "evaluations": first.evaluations,
                  "multistart": 3, **dict(zip(NAMES, map(float, np.exp(theta[:3]))))}
@@ -566,7 +565,7 @@ def _continuation(log: DriveLog, base: DriveParams, start: dict[str, float], the
         # model with a narrow basin (e.g. Stribeck's ratio x velocity) can still be walking towards the optimum
         # after ``stage_iter`` (measured: 12 left the residual 1700x the noise, 33 reached it); IPOPT stops by
         # itself once the objective no longer changes.
-        theta, info = _casadi_fit(problem, theta, lo, hi, final_iter if stop >= log.n else stage_iter)
+        theta, info = fit_ipopt(problem, theta, lo, hi, final_iter if stop >= log.n else stage_iter)
         stages.append({"window_s": stop / rate, **info, "evaluations": problem.evaluations,
                        **dict(zip(NAMES, map(float, np.exp(theta[:3]))))})
         if progress:
@@ -584,7 +583,7 @@ def _result(log: DriveLog, problem: OutputError, theta: np.ndarray, start: dict[
             stages: list[dict[str, Any]], sigma_l: float, sigma_quiet: float, elapsed: float) -> TwoInertiaFit:
     """Estimates with intervals, fit quality and warnings at the whole-log optimum."""
     block = max(10, int(log.meta.sample_rate_hz / max(start["f_peak_hz"], 1.0)))  # one ringing period
-    cov_noise, cov_sand, _ = _covariances(problem, theta, block)
+    cov_noise, cov_sand, _ = covariances(problem, theta, block)
     q_m, q_l, offset = problem.simulate(theta)
     cov_noise, cov_sand = cov_noise[:3, :3], cov_sand[:3, :3]
     std_ln = np.sqrt(np.maximum(np.diag(cov_sand), np.diag(cov_noise)))

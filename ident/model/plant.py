@@ -21,7 +21,6 @@ from fmu_build.build import default_fmu_path
 
 from .params import DriveParams, ParameterError, check_parameter
 
-
 _RUNNER: ctypes.CDLL | None = None
 
 
@@ -134,9 +133,13 @@ class Plant:
 
     # -- logging and error handling --------------------------------------------------------------------------
     def _fmi2_callbacks(self) -> Any:
-        from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2CallbackAllocateMemoryTYPE, \
-            fmi2CallbackFreeMemoryTYPE
         from fmpy import calloc, free
+        from fmpy.fmi2 import (
+            fmi2CallbackAllocateMemoryTYPE,
+            fmi2CallbackFreeMemoryTYPE,
+            fmi2CallbackFunctions,
+            fmi2CallbackLoggerTYPE,
+        )
 
         def log(env, name, status, category, message):  # noqa: ANN001 - ctypes callback
             self._messages.append(message.decode("utf-8", "replace").replace("%%", "%"))

@@ -1,0 +1,41 @@
+"""Output written atomically: a file appears whole or not at all, a report folder only once everything in it has
+been written. A failed or interrupted run never leaves a report that looks finished, nor its staging files."""
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Callable, Iterator
+
+
+def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
+    """``write`` a temporary file beside ``path``, then rename it onto ``path`` (never a half-written file)."""
+    fd, name = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=f".tmp-{path.name}")
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        write(tmp)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+@contextmanager
+def staged_folder(out_dir: str | Path, last: str | None = None) -> Iterator[Path]:
+    """Yield a staging folder beside ``out_dir``; when the block succeeds, move its files into ``out_dir`` (created),
+    ``last`` (the report) after all the others, so that a report that exists is complete. On any error the staging
+    folder is removed and ``out_dir`` is left as it was."""
+    out = Path(out_dir)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
+    try:
+        yield staging
+        out.mkdir(exist_ok=True)
+        for name in sorted(os.listdir(staging), key=lambda n: n == last):
+            os.replace(staging / name, out / name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
