@@ -33,10 +33,6 @@ class Variable:
     hi: float | None
     description: str
 
-    @property
-    def c_name(self) -> str:
-        return self.name
-
 
 def _param(name: str, vr: int, start: float, lo: float, hi: float, unit: str | None, desc: str,
            type_: VarType = "Real") -> Variable:

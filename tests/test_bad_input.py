@@ -22,9 +22,9 @@ class RawFMU:
     def __init__(self, fmi: int) -> None:
         self.plant = Plant(fmi_version=fmi)  # loads and instantiates the FMU; we use its raw handles only
         self.fmi = fmi
-        self.f = self.plant._fmu._functions
-        self.c = self.plant._fmu.component
-        self.log = self.plant._messages
+        self.f = self.plant.fmi_functions
+        self.c = self.plant.component
+        self.log = self.plant.messages
 
     def _args(self, vrs, values, ctype):
         n = len(vrs)

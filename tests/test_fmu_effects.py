@@ -687,13 +687,13 @@ def test_bad_effect_parameters_are_refused(fmi: int, name: str, value: float) ->
     with pytest.raises(ParameterError, match=rf"{name} = .* is outside the allowed range"):
         DriveParams(**{name: value})
     with Plant(fmi_version=fmi) as plant:
-        fmu = plant._fmu
+        fmu = plant.fmu
         fmu.reset()
-        plant._messages.clear()
+        plant.messages.clear()
         set_real = fmu.setReal if fmi == 2 else fmu.setFloat64
         with pytest.raises(Exception):
             set_real([var.vr], [value])
-        msg = plant._messages[-1]
+        msg = plant.messages[-1]
         assert f"{name} = " in msg and "allowed range" in msg and f"[{var.lo:g}, {var.hi:g}]" in msg, msg
 
 

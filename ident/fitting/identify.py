@@ -210,12 +210,10 @@ class OutputError:
         self.plant.close()
 
 
-def fit_ipopt(problem: OutputError, theta0: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-                max_iter: int = 40, max_cpu_time: float = 1e6) -> tuple[np.ndarray, dict[str, Any]]:
-    """min 0.5 |r(theta)|^2 / m with IPOPT; r is the FMU through a CasADi callback, Hessian Gauss-Newton."""
+def _residual_callback(problem: OutputError, n: int, m: int) -> Any:
+    """The FMU's weighted residuals as a CasADi callback of theta (n unknowns, m residuals), whose Jacobian is a
+    second callback: central differences through the same FMU (``OutputError.jacobian``)."""
     import casadi as ca
-
-    n, m = theta0.size, problem.residuals(theta0).size
 
     class Jac(ca.Callback):
         def __init__(self, name: str):
@@ -245,27 +243,41 @@ def fit_ipopt(problem: OutputError, theta0: np.ndarray, lower: np.ndarray, upper
             x, out = ca.MX.sym("x", n), ca.MX.sym("out", m)
             return ca.Function(name, [x, out], [self.jac_cb(x, out)], inames, onames)
 
-    res = Res("fmu_residuals")
+    return Res("fmu_residuals")
+
+
+def _gauss_newton_solver(res: Any, n: int, m: int, max_iter: int, max_cpu_time: float) -> Any:
+    """IPOPT on 0.5 |r(theta)|^2 / m with the Gauss-Newton Hessian J^T J / m (r: the callback ``res``)."""
+    import casadi as ca
+
     x = ca.MX.sym("theta", n)
     r = res(x)
     f = 0.5 * ca.sumsqr(r) / m
     jr = ca.jacobian(r, x)
     lam_f, lam_g, p = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", 0), ca.MX.sym("p", 0)
     hess = ca.Function("nlp_hess_l", [x, p, lam_f, lam_g], [ca.triu(lam_f * ca.mtimes(jr.T, jr) / m)])
-    solver = ca.nlpsol("output_error", "ipopt", {"x": x, "f": f},
-                       {"hess_lag": hess, "print_time": False,
-                        # The exact model's cost has micro-steps where a marginal stick/slip decision flips (a
-                        # 1e-6 relative change of a parameter can reorder one event): stop once the objective no
-                        # longer changes rather than insisting on a gradient below the finite-difference noise:
-                        # three iterations in a row that change it by < 1e-8 (relative) end the fit, whatever the
-                        # optimality error (measured on a 10 s log: the last stage sat at its optimum from iteration
-                        # 22 to 40, its line search stuck at step 1e-11 on a kink, scaled dual infeasibility 3.6e-4;
-                        # a from-scratch fit with an effect took 97 s, now 34 s, same optimum to 5e-9)
-                        "ipopt": {"print_level": 0, "max_iter": max_iter, "tol": 1e-10, "mu_init": 1e-6,
-                                  "acceptable_tol": 1e19, "acceptable_obj_change_tol": 1e-8, "acceptable_iter": 3,
-                                  # backtrack fast: a failed step on a kink is not worth 40 halvings
-                                  "alpha_red_factor": 0.1, "max_cpu_time": max_cpu_time,
-                                  "sb": "yes"}})
+    return ca.nlpsol("output_error", "ipopt", {"x": x, "f": f},
+                     {"hess_lag": hess, "print_time": False,
+                      # The exact model's cost has micro-steps where a marginal stick/slip decision flips (a
+                      # 1e-6 relative change of a parameter can reorder one event): stop once the objective no
+                      # longer changes rather than insisting on a gradient below the finite-difference noise:
+                      # three iterations in a row that change it by < 1e-8 (relative) end the fit, whatever the
+                      # optimality error (measured on a 10 s log: the last stage sat at its optimum from iteration
+                      # 22 to 40, its line search stuck at step 1e-11 on a kink, scaled dual infeasibility 3.6e-4;
+                      # a from-scratch fit with an effect took 97 s, now 34 s, same optimum to 5e-9)
+                      "ipopt": {"print_level": 0, "max_iter": max_iter, "tol": 1e-10, "mu_init": 1e-6,
+                                "acceptable_tol": 1e19, "acceptable_obj_change_tol": 1e-8, "acceptable_iter": 3,
+                                # backtrack fast: a failed step on a kink is not worth 40 halvings
+                                "alpha_red_factor": 0.1, "max_cpu_time": max_cpu_time,
+                                "sb": "yes"}})
+
+
+def fit_ipopt(problem: OutputError, theta0: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+              max_iter: int = 40, max_cpu_time: float = 1e6) -> tuple[np.ndarray, dict[str, Any]]:
+    """min 0.5 |r(theta)|^2 / m with IPOPT; r is the FMU through a CasADi callback, Hessian Gauss-Newton."""
+    n, m = theta0.size, problem.residuals(theta0).size
+    res = _residual_callback(problem, n, m)
+    solver = _gauss_newton_solver(res, n, m, max_iter, max_cpu_time)
     try:
         sol = solver(x0=theta0, lbx=lower, ubx=upper)
     except RuntimeError:  # CasADi wraps an exception raised in a callback: say so if it was the deadline

@@ -250,10 +250,6 @@ class RigidParam:
     std_matlab: float
 
     @property
-    def rel_std_ls_pct(self) -> float:
-        return 100.0 * self.std_ls / abs(self.value)
-
-    @property
     def rel_std_hac_pct(self) -> float:
         return 100.0 * self.std_hac / abs(self.value)
 

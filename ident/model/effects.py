@@ -201,14 +201,6 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            "K_s", ()),
 )}
 
-ORDER = tuple(EFFECTS)
-
-
-def effect_params(values: dict[str, float]) -> dict[str, float]:
-    """The FMU effect parameters among ``values`` (others dropped)."""
-    return {k: float(v) for k, v in values.items() if k in EFFECT_DEFAULTS}
-
-
 def active_effects(values: dict[str, float]) -> list[str]:
     """Names of the effects switched on by a set of FMU parameter values."""
     on = []

@@ -200,6 +200,27 @@ class Plant:
     def params(self) -> DriveParams:
         return self._params
 
+    # -- the raw FMI level, for importer-side tests and tools ---------------------------------------------------
+    @property
+    def fmu(self) -> Any:
+        """The fmpy slave object (``fmpy.fmi2.FMU2Slave`` / ``fmpy.fmi3.FMU3Slave``) this plant drives."""
+        return self._fmu
+
+    @property
+    def fmi_functions(self) -> dict[str, Any]:
+        """The FMU's C functions as loaded (ctypes, by FMI name, e.g. ``"fmi2DoStep"``), for calls below ``Plant``."""
+        return self._fmu._functions
+
+    @property
+    def component(self) -> Any:
+        """The FMU instance handle (``fmi2Component`` / ``fmi3Instance``) to pass to ``fmi_functions``."""
+        return self._fmu.component
+
+    @property
+    def messages(self) -> list[str]:
+        """The FMU's log messages since the last error was raised (oldest first; cleared by ``reset``)."""
+        return self._messages
+
     def reset(self, params: DriveParams | None = None, **initial: float) -> Sample:
         """Back to time 0 and the initial state, optionally with new parameters / initial state."""
         for name, value in initial.items():
@@ -210,24 +231,11 @@ class Plant:
             if not isinstance(params, DriveParams):
                 raise TypeError(f"params must be a DriveParams, got {type(params).__name__}")
             self._params = params
-        fmu = self._fmu
         self._messages.clear()
         try:
-            fmu.reset()
-            values = {**self._params.to_dict(), **self._initial}
-            reals = [(self._vr[k], float(v)) for k, v in values.items() if V.BY_NAME[k].type == "Real"]
-            ints = [(self._vr[k], int(v)) for k, v in values.items() if V.BY_NAME[k].type == "Integer"]
-            set_real, set_int = ((fmu.setReal, fmu.setInteger) if self.fmi_version == 2
-                                 else (fmu.setFloat64, fmu.setInt32))
-            set_real([r[0] for r in reals], [r[1] for r in reals])
-            set_int([i[0] for i in ints], [i[1] for i in ints])
-            if self.fmi_version == 2:
-                fmu.setupExperiment(startTime=0.0)
-                fmu.enterInitializationMode()
-                fmu.exitInitializationMode()
-            else:
-                fmu.enterInitializationMode(startTime=0.0)
-                fmu.exitInitializationMode()
+            self._fmu.reset()
+            self._set_start_values({**self._params.to_dict(), **self._initial})
+            self._initialize()
         except Exception as exc:  # fmpy raises FMICallException; report the FMU's own message
             if isinstance(exc, PlantError):
                 raise
@@ -235,6 +243,24 @@ class Plant:
         self.time = 0.0
         self.torque = 0.0
         return self.sample()
+
+    def _set_start_values(self, values: dict[str, float | int]) -> None:
+        fmu = self._fmu
+        reals = [(self._vr[k], float(v)) for k, v in values.items() if V.BY_NAME[k].type == "Real"]
+        ints = [(self._vr[k], int(v)) for k, v in values.items() if V.BY_NAME[k].type == "Integer"]
+        set_real, set_int = ((fmu.setReal, fmu.setInteger) if self.fmi_version == 2
+                             else (fmu.setFloat64, fmu.setInt32))
+        set_real([r[0] for r in reals], [r[1] for r in reals])
+        set_int([i[0] for i in ints], [i[1] for i in ints])
+
+    def _initialize(self) -> None:
+        """Initialization mode at time 0, then out of it (FMI 2 sets up the experiment first)."""
+        if self.fmi_version == 2:
+            self._fmu.setupExperiment(startTime=0.0)
+            self._fmu.enterInitializationMode()
+        else:
+            self._fmu.enterInitializationMode(startTime=0.0)
+        self._fmu.exitInitializationMode()
 
     def close(self) -> None:
         """Free the FMU instance and its unpacked files."""
@@ -397,9 +423,3 @@ class Plant:
             self._raise(f"restoring the FMU state ({exc})")
         self.time = state.time
         return self.sample()
-
-
-def simulate_pieces(params: DriveParams, schedule: Sequence[tuple[float, float]], **kw: Any) -> pd.DataFrame:
-    """Convenience: a fresh plant, one schedule, the output table."""
-    with Plant(params, **kw) as plant:
-        return plant.run(schedule)
