@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Sequence
+from typing import Any, Sequence
 
 from .model.params import DriveParams, ParameterError, parse_assignments
 from .protocols.controllers import SettleError
@@ -239,16 +239,15 @@ def _add_batch_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, help="local worker processes (default: cores; 0 = serial, no Dask)")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="hdrive", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
-
+def _add_build_fmu(sub: Any) -> None:
     p = sub.add_parser("build-fmu", help="build HarmonicDrive.fmu and print its path")
     p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version (default 2)")
     p.add_argument("--out", required=True, help="directory to write HarmonicDrive.fmu into")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_build_fmu)
 
+
+def _add_demo(sub: Any) -> None:
     p = sub.add_parser("demo", help="nominal drive's response to a train of 1 ms torque pulses (CSV + PNG)")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--pulses", type=int, default=10, help="number of pulses (default 10)")
@@ -258,6 +257,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_demo)
 
+
+def _add_resolution(sub: Any) -> None:
     p = sub.add_parser("resolution", help="impulse or linear resolution of one drive (paper sections III-IV)")
     p.add_argument("--controller", choices=("impulse", "linear"), required=True)
     p.add_argument("--fl-star", type=float, help="load friction level f_l* = f_l/f_m (default: the drive's)")
@@ -268,6 +269,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_drive_options(p)
     p.set_defaults(func=cmd_resolution)
 
+
+def _add_sweep(sub: Any) -> None:
     p = sub.add_parser("sweep", help="impulse resolution at 25 load-friction levels (paper section V)")
     p.add_argument("--levels", type=int, default=25, help="number of levels from f_l* = 0.01 to 1 (default 25)")
     p.add_argument("--pulses", type=int, default=1000, help="pulses per experiment N (default 1000)")
@@ -276,6 +279,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_drive_options(p)
     p.set_defaults(func=cmd_sweep)
 
+
+def _add_study(sub: Any) -> None:
     p = sub.add_parser("study", help="the paper's whole study (sections III-V) with a markdown report")
     p.add_argument("--out", required=True, help="output directory for report.md and its plots")
     p.add_argument("--pulses", type=int, default=1000, help="pulses per impulse experiment N (default 1000)")
@@ -285,11 +290,15 @@ def build_parser() -> argparse.ArgumentParser:
     _add_drive_options(p)
     p.set_defaults(func=cmd_study)
 
+
+def _add_identify(sub: Any) -> None:
     p = sub.add_parser("identify", help="estimate the drive's parameters from a log (CasADi + IPOPT, exact model)")
     _add_log_options(p)
     p.add_argument("--out", help="also write a plot of measured vs fitted load angle here")
     p.set_defaults(func=cmd_identify)
 
+
+def _add_predict(sub: Any) -> None:
     p = sub.add_parser("predict", help="identify, then predict impulse and linear resolution with 95 %% intervals")
     _add_log_options(p)
     p.add_argument("--draws", type=int, default=20, help="parameter draws for the interval (default 20)")
@@ -298,6 +307,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_batch_options(p)
     p.set_defaults(func=cmd_predict)
 
+
+def _add_diagnose(sub: Any) -> None:
     p = sub.add_parser("diagnose", help="find where the model and the log disagree, name the missing effects, refit "
                        "(report, plots and the fitted FMU)")
     _add_log_options(p)
@@ -313,6 +324,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default 300; 0: unlimited)")
     p.set_defaults(func=cmd_diagnose)
 
+
+def _add_paper_effects(sub: Any) -> None:
     p = sub.add_parser("paper-effects", help="the friction sweep with and without each effect of the library: which "
                                              "effects reproduce the paper's linear trend and avalanche")
     p.add_argument("--out", required=True, help="output directory for paper_effects.md, CSVs and plot")
@@ -322,11 +335,20 @@ def build_parser() -> argparse.ArgumentParser:
     _add_batch_options(p)
     p.set_defaults(func=cmd_paper_effects)
 
+
+def _add_emps_report(sub: Any) -> None:
     p = sub.add_parser("emps-report", help="the EMPS benchmark (real drive): rigid IDIM-LS side by side with the paper")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--data", help="folder with DATA_EMPS.mat and DATA_EMPS_PULSES.mat (default: ../shared/data/emps)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_emps_report)
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="hdrive", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    for add in (_add_build_fmu, _add_demo, _add_resolution, _add_sweep, _add_study, _add_identify, _add_predict,
+                _add_diagnose, _add_paper_effects, _add_emps_report):
+        add(sub)
     return parser
 
 

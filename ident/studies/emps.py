@@ -35,6 +35,7 @@ import scipy.io
 import scipy.stats
 
 from ..common.markdown import md_table
+from ..common.output import staged_folder
 from ..common.plotting import figure, save
 from ..diagnosis.result import PublishedReference
 from ..fitting.logs import DriveLog, LogError, LogMeta
@@ -283,23 +284,50 @@ def simulate_closed_loop(fit: RigidFit, log: DriveLog, *, saturation_V: float = 
     filtered measured velocity at t_0, the controller's past positions on that straight line.
     """
     t0 = time.perf_counter()
-    gtau, kp, kv = closed_loop_gains(log)
+    gains = closed_loop_gains(log)
+    plant = _simulable(fit, control_delay_samples)
+    s = fit.settings
+    if abs(log.meta.sample_rate_hz - s.sample_rate_hz) > 1e-3 * s.sample_rate_hz:
+        s = idim_settings(log.meta.sample_rate_hz, s.f_dyn_hz, s.f_dyn_source)
+    q_f, dq_f, ddq_f = filtered_states(log.motor_pos_rad, s)
+    run = _run_closed_loop(log, plant, gains, float(dq_f[0]), int(control_delay_samples), saturation_V)
+    k0 = s.n_border - 1
+
+    def rel(meas: np.ndarray, sim: np.ndarray) -> float:
+        return 100.0 * float(np.linalg.norm(meas[k0:] - sim[k0:]) / np.linalg.norm(meas[k0:]))
+
+    force = gains[0] * run["vir"]
+    return ClosedLoopSim(t=log.time_s, q=run["q"], v=run["v"], a=run["a"], vir=run["vir"], force=force,
+                         stuck=run["stuck"], q_meas=log.motor_pos_rad, q_filt=q_f, v_filt=dq_f, a_filt=ddq_f,
+                         force_meas=log.motor_torque_Nm, position_pct=rel(log.motor_pos_rad, run["q"]),
+                         position_filtered_pct=rel(q_f, run["q"]), velocity_pct=rel(dq_f, run["v"]),
+                         acceleration_pct=rel(ddq_f, run["a"]), force_pct=rel(log.motor_torque_Nm, force),
+                         n_zero_velocity_events=run["zeros"], n_stuck_samples=int(run["stuck"].sum()),
+                         n_saturated=run["n_sat"], control_delay_samples=int(control_delay_samples),
+                         runtime_s=time.perf_counter() - t0, source=log.source)
+
+
+def _simulable(fit: RigidFit, control_delay_samples: int) -> tuple[float, float, float, float]:
+    """(M, Fv, Fc, offset) of ``fit``, checked to be a plant the exact integrator can move."""
     M, Fv, Fc, off = (float(x) for x in fit.theta)
     if M <= 0 or Fv < 0 or Fc < 0:
         raise ValueError(f"cannot simulate M = {M:g}, Fv = {Fv:g}, Fc = {Fc:g}: need M > 0, Fv >= 0, Fc >= 0")
     if control_delay_samples < 0 or int(control_delay_samples) != control_delay_samples:
         raise ValueError(f"control_delay_samples must be a non-negative integer, got {control_delay_samples!r}")
-    d = int(control_delay_samples)
-    s = fit.settings
-    if abs(log.meta.sample_rate_hz - s.sample_rate_hz) > 1e-3 * s.sample_rate_hz:
-        s = idim_settings(log.meta.sample_rate_hz, s.f_dyn_hz, s.f_dyn_source)
-    q_f, dq_f, ddq_f = filtered_states(log.motor_pos_rad, s)
+    return M, Fv, Fc, off
+
+
+def _run_closed_loop(log: DriveLog, plant: tuple[float, float, float, float], gains: tuple[float, float, float],
+                     v0: float, d: int, saturation_V: float) -> dict[str, Any]:
+    """The sample loop of :func:`simulate_closed_loop`: controller, delay line, saturation, exact plant step."""
+    M, Fv, Fc, off = plant
+    gtau, kp, kv = gains
     qg = log.extra["qg"]
     pulses = log.extra.get("pulses_N", np.zeros_like(qg))
     n, h = log.n, log.dt
-    q_out, v_out, a_out, vir_out = (np.empty(n) for _ in range(4))
-    stuck = np.zeros(n, dtype=bool)
-    q, v = float(log.motor_pos_rad[0]), float(dq_f[0])
+    out = {k: np.empty(n) for k in ("q", "v", "a", "vir")}
+    out["stuck"] = np.zeros(n, dtype=bool)
+    q, v = float(log.motor_pos_rad[0]), v0
     q_m1, q_m2 = q - h * v, q - 2 * h * v                  # controller memory q_{k-1}, q_{k-2}
     pending = [kv * (kp * (qg[0] - q) - v)] * d            # outputs computed before t_0 (delay line)
     zeros = n_sat = 0
@@ -313,29 +341,20 @@ def simulate_closed_loop(fit: RigidFit, log: DriveLog, *, saturation_V: float = 
             n_sat += 1
             vk = math.copysign(saturation_V, vk)
         u = gtau * vk - off
-        q_out[k], v_out[k], vir_out[k] = q, v, vk
-        if v == 0.0 and abs(u) <= Fc:
-            stuck[k], a_out[k] = True, 0.0
-        else:
-            sgn = (1.0 if v > 0 else -1.0) if v != 0.0 else (1.0 if u > 0 else -1.0)
-            a_out[k] = (u - Fv * v - sgn * Fc) / M
+        out["q"][k], out["v"][k], out["vir"][k] = q, v, vk
+        out["stuck"][k] = v == 0.0 and abs(u) <= Fc
+        out["a"][k] = 0.0 if out["stuck"][k] else (u - Fv * v - _direction(v, u) * Fc) / M
         q_m2, q_m1 = q_m1, q
         q, v, z = advance(q, v, u, h, M, Fv, Fc)
         zeros += z
-    k0 = s.n_border - 1
-    force_meas = log.motor_torque_Nm
+    return {**out, "zeros": zeros, "n_sat": n_sat}
 
-    def rel(meas: np.ndarray, sim: np.ndarray) -> float:
-        return 100.0 * float(np.linalg.norm(meas[k0:] - sim[k0:]) / np.linalg.norm(meas[k0:]))
 
-    force = gtau * vir_out
-    return ClosedLoopSim(t=log.time_s, q=q_out, v=v_out, a=a_out, vir=vir_out, force=force, stuck=stuck,
-                         q_meas=log.motor_pos_rad, q_filt=q_f, v_filt=dq_f, a_filt=ddq_f, force_meas=force_meas,
-                         position_pct=rel(log.motor_pos_rad, q_out), position_filtered_pct=rel(q_f, q_out),
-                         velocity_pct=rel(dq_f, v_out), acceleration_pct=rel(ddq_f, a_out),
-                         force_pct=rel(force_meas, force), n_zero_velocity_events=zeros,
-                         n_stuck_samples=int(stuck.sum()), n_saturated=n_sat, control_delay_samples=d,
-                         runtime_s=time.perf_counter() - t0, source=log.source)
+def _direction(v: float, u: float) -> float:
+    """The sliding direction: the velocity's sign, or for a body breaking away from rest the force's."""
+    if v != 0.0:
+        return 1.0 if v > 0 else -1.0
+    return 1.0 if u > 0 else -1.0
 
 
 # ----------------------------------------------------------------------------------------- report -------------
@@ -367,69 +386,38 @@ def _plot(fit: RigidFit, cv: CrossValidation, sim: ClosedLoopSim, sim_p: ClosedL
 
 def emps_report(out_dir: str | Path, data_dir: str | Path | None = None) -> Path:
     """Run the whole benchmark (fit on DATA_EMPS, cross-test on DATA_EMPS_PULSES, closed-loop simulations of both)
-    and write ``report.md`` (paper vs ours), ``emps.png`` and ``emps.json`` into ``out_dir``; returns the report."""
+    and write ``report.md`` (paper vs ours), ``emps.png`` and ``emps.json`` into ``out_dir`` (all or nothing);
+    returns the report."""
     import json
 
     d = _data_dir(data_dir)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     tl = time.perf_counter()
     log = load_emps(d / "DATA_EMPS.mat")
     t_load = time.perf_counter() - tl
-    fit = identify_rigid(log)
     log_p = load_emps(d / "DATA_EMPS_PULSES.mat")
+    fit = identify_rigid(log)
     cv = validate_rigid(fit, log_p)
-    sim = simulate_closed_loop(fit, log)
-    sim_p = simulate_closed_loop(fit, log_p)
-    _plot(fit, cv, sim, sim_p, out / "emps.png")
+    sims = {(name, delay): simulate_closed_loop(fit, lg, control_delay_samples=delay)
+            for name, lg in (("DATA_EMPS", log), ("DATA_EMPS_PULSES", log_p)) for delay in (0, 1)}
+    summary = {"fit": fit.to_dict(), "cross_validation": cv.to_dict(),
+               "simulation": sims["DATA_EMPS", 0].to_dict(), "simulation_pulses": sims["DATA_EMPS_PULSES", 0].to_dict(),
+               "simulation_delay1": sims["DATA_EMPS", 1].to_dict(),
+               "simulation_pulses_delay1": sims["DATA_EMPS_PULSES", 1].to_dict(), "paper": PAPER, "load_s": t_load}
+    md = _header_md(log, log_p, fit, t_load) + _estimates_md(fit) + _figures_md(fit, cv, sims, log) + \
+        _differences_md(sims["DATA_EMPS", 1])
+    with staged_folder(out_dir, last="report.md") as out:
+        _plot(fit, cv, sims["DATA_EMPS", 0], sims["DATA_EMPS_PULSES", 0], out / "emps.png")
+        (out / "emps.json").write_text(json.dumps(summary, indent=2, default=float))
+        (out / "report.md").write_text(md)
+    return Path(out_dir) / "report.md"
 
-    def pct(ours: float, paper: float) -> str:
-        return f"{100 * (ours - paper) / abs(paper):+.4f} %"
 
-    rows = []
-    for p in fit.params:
-        rows.append((f"{p.name} [{p.unit}]", f"{PAPER[p.name]:.4f}", f"{p.value:.4f}", pct(p.value, PAPER[p.name]),
-                     f"{PAPER['std'][p.name]:.4f}", f"{p.std_matlab:.4f}", f"{p.std_ls:.4f}", f"{p.std_hac:.4f}"))
-    params_md = md_table((["parameter", "paper", "ours", "ours vs paper", "paper std", "ours std (script formula)",
-                           "ours std LS", "ours std HAC"], rows))
-    P, Ps, Pp = PAPER, PAPER["sim"], PAPER["sim_pulses"]
-    sim1 = simulate_closed_loop(fit, log, control_delay_samples=1)
-    sim1_p = simulate_closed_loop(fit, log_p, control_delay_samples=1)
-    fig_rows = [
-        ("IDIM-LS relative error, DATA_EMPS [%]", P["relative_error_pct"], fit.relative_error_pct, None),
-        ("error norm [N]", P["error_norm"], fit.error_norm, None),
-        ("deviation of error [N]", P["error_std"], fit.error_std, None),
-        ("condition number", P["cond"], fit.cond, None),
-        ("cross-validation relative error, DATA_EMPS_PULSES [%]", P["ctv"]["relative_error_pct"],
-         cv.relative_error_pct, None),
-        ("cross-validation error norm [N]", P["ctv"]["error_norm"], cv.error_norm, None),
-        ("cross-validation deviation of error [N]", P["ctv"]["error_std"], cv.error_std, None),
-        ("cross-validation condition number", P["ctv"]["cond"], cv.cond, None),
-    ]
-    for label, pp, a, b in (("DATA_EMPS", Ps, sim, sim1), ("DATA_EMPS_PULSES", Pp, sim_p, sim1_p)):
-        fig_rows += [(f"simulation {label}: position [%]", pp["position_pct"], a.position_filtered_pct,
-                      b.position_filtered_pct),
-                     (f"simulation {label}: velocity [%]", pp["velocity_pct"], a.velocity_pct, b.velocity_pct),
-                     (f"simulation {label}: acceleration [%]", pp["acceleration_pct"], a.acceleration_pct,
-                      b.acceleration_pct),
-                     (f"simulation {label}: force [%]", pp["force_pct"], a.force_pct, b.force_pct)]
-    figs_md = md_table((["figure", "paper", "ours", "ours, simulation with a 1-sample control delay"],
-                        [(a, f"{b:.6g}", f"{c:.6g}", "" if d is None else f"{d:.6g}") for a, b, c, d in fig_rows]))
-    ci_md = md_table((["parameter", "estimate", "95 % CI (LS)", "95 % CI (HAC)", "HAC rel. std"],
-                      [(f"{p.name} [{p.unit}]", f"{p.value:.4f}", f"[{p.ci95_ls[0]:.4f}, {p.ci95_ls[1]:.4f}]",
-                        f"[{p.ci95_hac[0]:.4f}, {p.ci95_hac[1]:.4f}]", f"{p.rel_std_hac_pct:.3f} %")
-                       for p in fit.params]))
-    corr_md = md_table((["", *PARAM_NAMES], [(a, *(f"{c:+.3f}" for c in row))
-                                             for a, row in zip(PARAM_NAMES, fit.corr_hac)]))
+def _header_md(log: DriveLog, log_p: DriveLog, fit: RigidFit, t_load: float) -> str:
     s = fit.settings
-    summary = {"fit": fit.to_dict(), "cross_validation": cv.to_dict(), "simulation": sim.to_dict(),
-               "simulation_pulses": sim_p.to_dict(), "simulation_delay1": sim1.to_dict(),
-               "simulation_pulses_delay1": sim1_p.to_dict(), "paper": PAPER, "load_s": t_load}
-    (out / "emps.json").write_text(json.dumps(summary, indent=2, default=float))
-    md = f"""# EMPS benchmark: IDIM-LS and closed-loop simulation vs the published reference
+    return f"""# EMPS benchmark: IDIM-LS and closed-loop simulation vs the published reference
 
 Data: `{log.source}` ({log.n} samples, {log.meta.sample_rate_hz:.3f} Hz) and `{log_p.source}` (cross-test).
-Procedure: the PDF's section 3 (Script_IDIM_LS), in `ident/emps.py`. The least-squares problem is solved by
+Procedure: the PDF's section 3 (Script_IDIM_LS), in `ident/fitting/rigid.py`. The least-squares problem is solved by
 CasADi + IPOPT ({fit.solver['return_status']}, {fit.solver['iterations']} iteration(s)) and equals
 `numpy.linalg.lstsq` to {fit.casadi_vs_lstsq:.1e} (largest relative difference).
 
@@ -443,7 +431,25 @@ frequency at {fit.closed_loop_natural_freq_hz:.2f} Hz <= w_dyn, so both rules ho
 Fit time: {fit.runtime_s:.3f} s (filtering, decimation, IPOPT, lstsq check, covariances); loading the .mat file:
 {t_load:.3f} s.
 
-## Estimates
+"""
+
+
+def _estimates_md(fit: RigidFit) -> str:
+    def pct(ours: float, paper: float) -> str:
+        return f"{100 * (ours - paper) / abs(paper):+.4f} %"
+
+    rows = [(f"{p.name} [{p.unit}]", f"{PAPER[p.name]:.4f}", f"{p.value:.4f}", pct(p.value, PAPER[p.name]),
+             f"{PAPER['std'][p.name]:.4f}", f"{p.std_matlab:.4f}", f"{p.std_ls:.4f}", f"{p.std_hac:.4f}")
+            for p in fit.params]
+    params_md = md_table((["parameter", "paper", "ours", "ours vs paper", "paper std", "ours std (script formula)",
+                           "ours std LS", "ours std HAC"], rows))
+    ci_md = md_table((["parameter", "estimate", "95 % CI (LS)", "95 % CI (HAC)", "HAC rel. std"],
+                      [(f"{p.name} [{p.unit}]", f"{p.value:.4f}", f"[{p.ci95_ls[0]:.4f}, {p.ci95_ls[1]:.4f}]",
+                        f"[{p.ci95_hac[0]:.4f}, {p.ci95_hac[1]:.4f}]", f"{p.rel_std_hac_pct:.3f} %")
+                       for p in fit.params]))
+    corr_md = md_table((["", *PARAM_NAMES], [(a, *(f"{c:+.3f}" for c in row))
+                                             for a, row in zip(PARAM_NAMES, fit.corr_hac)]))
+    return f"""## Estimates
 
 {params_md}
 
@@ -457,7 +463,41 @@ Correlation of the estimates (HAC):
 
 {corr_md}
 
-## Figures of merit
+"""
+
+
+def _figure_rows(fit: RigidFit, cv: CrossValidation, sims: dict[tuple[str, int], ClosedLoopSim]) -> list[tuple]:
+    """(figure, paper, ours, ours with a one-sample control delay) for the figures-of-merit table."""
+    P = PAPER
+    rows: list[tuple] = [
+        ("IDIM-LS relative error, DATA_EMPS [%]", P["relative_error_pct"], fit.relative_error_pct, None),
+        ("error norm [N]", P["error_norm"], fit.error_norm, None),
+        ("deviation of error [N]", P["error_std"], fit.error_std, None),
+        ("condition number", P["cond"], fit.cond, None),
+        ("cross-validation relative error, DATA_EMPS_PULSES [%]", P["ctv"]["relative_error_pct"],
+         cv.relative_error_pct, None),
+        ("cross-validation error norm [N]", P["ctv"]["error_norm"], cv.error_norm, None),
+        ("cross-validation deviation of error [N]", P["ctv"]["error_std"], cv.error_std, None),
+        ("cross-validation condition number", P["ctv"]["cond"], cv.cond, None),
+    ]
+    for label, pp in (("DATA_EMPS", P["sim"]), ("DATA_EMPS_PULSES", P["sim_pulses"])):
+        a, b = sims[label, 0], sims[label, 1]
+        rows += [(f"simulation {label}: position [%]", pp["position_pct"], a.position_filtered_pct,
+                  b.position_filtered_pct),
+                 (f"simulation {label}: velocity [%]", pp["velocity_pct"], a.velocity_pct, b.velocity_pct),
+                 (f"simulation {label}: acceleration [%]", pp["acceleration_pct"], a.acceleration_pct,
+                  b.acceleration_pct),
+                 (f"simulation {label}: force [%]", pp["force_pct"], a.force_pct, b.force_pct)]
+    return rows
+
+
+def _figures_md(fit: RigidFit, cv: CrossValidation, sims: dict[tuple[str, int], ClosedLoopSim], log: DriveLog) -> str:
+    s = fit.settings
+    sim, sim_p = sims["DATA_EMPS", 0], sims["DATA_EMPS_PULSES", 0]
+    figs_md = md_table((["figure", "paper", "ours", "ours, simulation with a 1-sample control delay"],
+                        [(a, f"{b:.6g}", f"{c:.6g}", "" if d is None else f"{d:.6g}")
+                         for a, b, c, d in _figure_rows(fit, cv, sims)]))
+    return f"""## Figures of merit
 
 {figs_md}
 
@@ -474,7 +514,11 @@ DATA_EMPS_PULSES the pulses are added to the controller output in volts: the mea
 
 ![force and position](emps.png)
 
-## Where we differ from the paper, and why
+"""
+
+
+def _differences_md(sim1: ClosedLoopSim) -> str:
+    return f"""## Where we differ from the paper, and why
 
 - **IDIM-LS and cross-test**: the estimates, stds, |diag R|, condition numbers, error norms and relative errors
   are the script's to the printed digits, because MATLAB's filtfilt padding and `decimate` (which keeps the sample
@@ -499,5 +543,3 @@ DATA_EMPS_PULSES the pulses are added to the controller output in volts: the mea
   section 3.5).
   The same misfit makes the HAC standard deviations 2 to 4 times the LS ones.
 """
-    (out / "report.md").write_text(md)
-    return out / "report.md"

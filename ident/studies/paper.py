@@ -147,47 +147,62 @@ def write_report(study: Study, out_dir: str | Path) -> Path:
     """Write report.md, CSV tables, JSON summary and PNG plots of ``study`` into ``out_dir`` (created)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    p = study.params
-    sweep_df = study.sweep.to_frame()
-    sweep_df.to_csv(out / "sweep.csv", index=False)
+    study.sweep.to_frame().to_csv(out / "sweep.csv", index=False)
     study.impulse.to_frame().to_csv(out / "impulse_increments.csv", index=False)
     study.linear.to_frame().to_csv(out / "linear_increments.csv", index=False)
     study.linear.plot(out / "linear.png")
     study.impulse.plot(out / "impulse.png")
     plots = study.sweep.plot(out)
     (out / "summary.json").write_text(json.dumps(study.summary(), indent=2, default=float))
-    drive = pd.DataFrame([
+    md = "\n".join([_intro_md(study), _linear_md(study.linear), _impulse_md(study.impulse), _sweep_md(study, plots),
+                    "## Where the base model differs from the paper, and why", _explanation(study)])
+    (out / "report.md").write_text(md)
+    return out / "report.md"
+
+
+def _drive_table(p: DriveParams) -> pd.DataFrame:
+    return pd.DataFrame([
         ("J_m", p.J_m, "kg m^2"), ("f_m", p.f_m, "N m"), ("K_s", p.K_s, "N m/rad"), ("J_l", p.J_l, "kg m^2"),
         ("f_l", p.f_l, "N m"), ("r", p.r, "-"), ("arm_length", p.arm_length, "m"),
         ("encoder_counts_per_rev", p.encoder_counts_per_rev, "counts"), ("T_c", p.T_c, "s"),
         ("K*", p.K_star, "1/rad"), ("J_l*", p.J_l_star, "-"), ("f_l*", p.f_l_star, "-"),
         ("one count at the arm", p.count_at_arm_m * 1e6, "um"),
     ], columns=["parameter", "value", "unit"])
-    imp, lin = study.impulse, study.linear
-    cols = ["f_l_star", "threshold_amplitude", "resolution_um", "median_um", "min_um", "std_um", "first_increment_um"]
-    md = f"""# Resolution study (hdrive)
+
+
+def _intro_md(study: Study) -> str:
+    p, imp, lin = study.params, study.impulse, study.linear
+    return f"""# Resolution study (hdrive)
 
 Drive: {'the nominal drive of physics.md' if p == DriveParams() else 'user-supplied parameters'}; plant:
 HarmonicDrive FMU (exact stick-slip) through fmpy. Protocol: physics.md section 3 (eps1 = {imp.eps1_m * 1e6:g} um,
 eps2 = {imp.eps2:g}, N = {imp.n_pulses} pulses, {lin.n_steps} PD steps after {lin.warmup} warm-up steps,
 {len(study.sweep.f_l_star)} friction levels).
 
-{md_table(drive)}
+{md_table(_drive_table(p))}
 
 ## Paper vs model
 
 {md_table(study.comparison())}
+"""
 
-## III. Linear controller (PD on the motor encoder)
+
+def _linear_md(lin: LinearResolution) -> str:
+    tried = ", ".join(f"k={t['counts']}: " + ("consistent" if t["consistent"] else f"failed at step {t['steps_run']}")
+                      for t in lin.tried)
+    return f"""## III. Linear controller (PD on the motor encoder)
 
 Smallest consistent step: **{lin.counts} counts**; resolution (max increment) **{lin.resolution_m * 1e6:.3f} um**,
 median {lin.median_m * 1e6:.3f} um, min {lin.min_m * 1e6:.3f} um, std {lin.std_m * 1e6:.4f} um
 (Kp* = {lin.gains['Kp_star']:g} /rad, Kd* = {lin.gains['Kd_star']:g}, {lin.gains['rate_hz']:g} Hz, saturation
-{lin.gains['saturation_star']:g}). Steps tried: {', '.join(f"k={t['counts']}: {'consistent' if t['consistent'] else 'failed at step ' + str(t['steps_run'])}" for t in lin.tried)}.
+{lin.gains['saturation_star']:g}). Steps tried: {tried}.
 
 ![linear](linear.png)
+"""
 
-## IV. Impulse controller
+
+def _impulse_md(imp: ImpulseResolution) -> str:
+    return f"""## IV. Impulse controller
 
 Threshold amplitude A_th = **{imp.threshold_amplitude:.4f}** (tau*, resolved to {imp.tol_star:g}; the first
 passing amplitude of the fine ramp, verified by the failing amplitude just below), operating amplitude
@@ -196,25 +211,24 @@ A_op = {imp.operating_amplitude:.4f}. Resolution (max increment of a fresh {imp.
 std {imp.std_m * 1e6:.5f} um.
 
 ![impulse](impulse.png)
+"""
 
-## V. Friction sweep
 
-Resolution vs f_l*: linear fit slope {study.sweep.trend()['slope_um']:.4f} um, intercept
-{study.sweep.trend()['intercept_um']:.4f} um, R^2 = {study.sweep.trend()['r2']:.3f} (median: slope
-{study.sweep.trend('median_um')['slope_um']:.2e} um). Full table: `sweep.csv`.
+def _sweep_md(study: Study, plots: dict[str, Path]) -> str:
+    trend, trend_median = study.sweep.trend(), study.sweep.trend("median_um")
+    cols = ["f_l_star", "threshold_amplitude", "resolution_um", "median_um", "min_um", "std_um", "first_increment_um"]
+    return f"""## V. Friction sweep
 
-{md_table(sweep_df[cols])}
+Resolution vs f_l*: linear fit slope {trend['slope_um']:.4f} um, intercept {trend['intercept_um']:.4f} um,
+R^2 = {trend['r2']:.3f} (median: slope {trend_median['slope_um']:.2e} um). Full table: `sweep.csv`.
+
+{md_table(study.sweep.to_frame()[cols])}
 
 ![histogram at f_l* = 0.1]({plots['histogram_fl0.1'].name})
 ![increment vs pulse number at f_l* = 0.1]({plots['sequence_fl0.1'].name})
 ![increment vs friction level]({plots['delta_vs_friction'].name})
 ![std vs friction level]({plots['std_vs_friction'].name})
-
-## Where the base model differs from the paper, and why
-{_explanation(study)}
 """
-    (out / "report.md").write_text(md)
-    return out / "report.md"
 
 
 def write_study(out_dir: str | Path, params: DriveParams | None = None, **kw: Any) -> tuple[Study, Path]:

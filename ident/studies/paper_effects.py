@@ -16,7 +16,7 @@ A(A-1)W*^2/2 (times r L) at eps1, and load friction only adds bounded scatter. H
 - ``write_paper_effects``: runs the sweep, the combination of the two best effects, and writes ``paper_effects.md``
   with its plots and tables (staging folder, moved into place only when complete).
 
-Lengths are um at the arm tip, amplitudes tau* = T_m / f_m, as in ``ident.resolution``.
+Lengths are um at the arm tip, amplitudes tau* = T_m / f_m, as in ``ident.protocols.resolution``.
 """
 from __future__ import annotations
 
@@ -335,33 +335,47 @@ def _verdict_words(row: Mapping[str, Any]) -> str:
     return "reproduces neither"
 
 
-def _explanations(sweep: EffectsSweep, summary: pd.DataFrame) -> str:
-    p = sweep.base
-    s = nominal_scales(p)
-    S = {r["case"]: r for r in summary.to_dict(orient="records")}
-    df = sweep.to_frame()
-    th = df.groupby("case")["threshold_amplitude"].agg(["min", "max"])
-    um = p.arm_length * 1e6  # rad at the load -> um at the arm
-    band_hi = sweep.f_l_star.max() * p.f_m / p.K_s * um
+class _Facts:
+    """What the explanations quote: the drive, its nominal scales, each case's verdict and threshold range."""
 
-    def v(name: str) -> str:
-        if name not in S:
+    def __init__(self, sweep: EffectsSweep, summary: pd.DataFrame) -> None:
+        self.p, self.f_l_star = sweep.base, sweep.f_l_star
+        self.s = nominal_scales(self.p)
+        self.rows = {r["case"]: r for r in summary.to_dict(orient="records")}
+        self.th = sweep.to_frame().groupby("case")["threshold_amplitude"].agg(["min", "max"])
+        self.um = self.p.arm_length * 1e6  # rad at the load -> µm at the arm
+        self.band_hi = sweep.f_l_star.max() * self.p.f_m / self.p.K_s * self.um
+
+    def v(self, name: str) -> str:
+        """A case's line fit and verdict, in words."""
+        if name not in self.rows:
             return "(not run)"
-        r = S[name]
-        return (f"slope {r['slope_um']:.3g} um, R^2 {r['r2']:.2f}, growth x{r['growth']:.2f}, first motion / median "
+        r = self.rows[name]
+        return (f"slope {r['slope_um']:.3g} µm, R^2 {r['r2']:.2f}, growth x{r['growth']:.2f}, first motion / median "
                 f"{r['first_over_median_hi']:.2f}: {_verdict_words(r)}")
 
-    def A(name: str) -> str:
+    def A(self, name: str) -> str:
+        """A case's threshold amplitude range over the levels."""
+        th = self.th
         return f"{th.loc[name, 'min']:.3f} - {th.loc[name, 'max']:.3f}" if name in th.index else "n/a"
 
+
+def _explanations(sweep: EffectsSweep, summary: pd.DataFrame) -> str:
+    facts = _Facts(sweep, summary)
+    return _explain_protocol(facts) + _explain_other_effects(facts)
+
+
+def _explain_protocol(facts: _Facts) -> str:
+    p, s, um, band_hi, v, A = facts.p, facts.s, facts.um, facts.band_hi, facts.v, facts.A
+    f_hi = facts.f_l_star.max()
     return f"""
 **What the protocol measures.** The threshold search stops at the first amplitude whose MEDIAN increment exceeds
 eps1, and in the long run the load follows the motor, so the median is the motor's own slide per pulse. With
 Coulomb friction that slide is A(A-1)W*^2/2 (times r L) and depends on the load only through the spring torque
-r K_s d <= r f_l (at most {p.r * sweep.f_l_star.max():.2g} f_m here): the median is pinned to about eps1 at every
+r K_s d <= r f_l (at most {p.r * f_hi:.2g} f_m here): the median is pinned to about eps1 at every
 f_l*. Load friction can only act through the *scatter* around that median, i.e. through how the load sticks and
 releases stored deflection; in the base model that is bounded by the band +-f_l/K_s (at most {band_hi:.2f} um at
-f_l* = {sweep.f_l_star.max():.3g}) and the release is even (period-two alternation), so the base has a bounded,
+f_l* = {f_hi:.3g}) and the release is even (period-two alternation), so the base has a bounded,
 flat max ({v('base')}). An effect reproduces the paper only if it makes the load store *more than it releases
 evenly*, in proportion to f_l.
 
@@ -376,7 +390,12 @@ mechanism needs the load's speeds in an impulse response (about {s['v_load']:.1e
 with v_s = 1e-4 rad/s, {v('stribeck_slow')}; with v_s = 1e-3 rad/s the load's friction hardly drops while it moves,
 so it behaves like a higher Coulomb level f_l (1 + s) and the effect saturates: {v('stribeck_fast')}.
 
-**Viscous friction** (b v): it removes energy from the ringing in proportion to speed, so the load's release is
+"""
+
+
+def _explain_other_effects(facts: _Facts) -> str:
+    p, s, v, A = facts.p, facts.s, facts.v, facts.A
+    return f"""**Viscous friction** (b v): it removes energy from the ringing in proportion to speed, so the load's release is
 damped, not enlarged, and it adds no static excess: there is nothing for the load to store beyond f_l/K_s (at the
 load's peak speed after a nominal pulse, ~{s['v_load']:.0e} rad/s, 5 % damping gives b_l v =
 {2 * 0.05 * math.sqrt(p.K_s * p.J_l) * s['v_load'] / p.f_l:.2g} f_l, comparable to friction, yet it only shortens
@@ -440,7 +459,7 @@ def _claims(sweep: EffectsSweep, summary: pd.DataFrame) -> str:
     combo = [c for c in S if "+" in c]
     for c in combo:
         r = S[c]
-        lines.append(f"- Combination {c}: {_verdict_words(r)} (slope {r['slope_um']:.3g} um, R^2 {r['r2']:.2f}, growth "
+        lines.append(f"- Combination {c}: {_verdict_words(r)} (slope {r['slope_um']:.3g} µm, R^2 {r['r2']:.2f}, growth "
                      f"x{r['growth']:.2f}, first motion {r['first_over_median_hi']:.2f} x median).")
     lines.append("- Realism: the effects that act need magnitudes at the edge of the plausible range at these tiny "
                  "motions (a Stribeck velocity of 1e-4 rad/s at the load, i.e. friction that drops within a few um/s "
@@ -475,41 +494,45 @@ def _write(sweep: EffectsSweep, out: Path, best: list[str]) -> Path:
     summary.to_csv(out / "paper_effects_summary.csv", index=False)
     top = sweep.best(1, distinct_effects=False)
     sweep.plot(out / "paper_effects.png", best=top[0] if top else None)
-    S = summary.set_index("case")
-    yes = [c for c in S.index if c != BASE_CASE.name and S.loc[c, "reproduces"]]
-    lin = [c for c in S.index if c != BASE_CASE.name and S.loc[c, "linear"]]
-    ava = [c for c in S.index if c != BASE_CASE.name and S.loc[c, "avalanche"]]
+    verdicts = _verdicts(summary)
     (out / "paper_effects.json").write_text(json.dumps({
         "criteria": dict(linear_r2=LINEAR_R2, linear_growth=LINEAR_GROWTH, avalanche_ratio=AVALANCHE_RATIO),
         "levels": sweep.f_l_star.tolist(), "n_pulses": int(df["n_pulses"].iloc[0]), "elapsed_s": sweep.elapsed_s,
         "cases": {c.name: dict(effect=c.effect, values=dict(c.values), per_f_l=dict(c.per_f_l), why=c.why)
                   for c in sweep.cases},
-        "best_two": best, "reproduces": yes, "linear": lin, "avalanche": ava,
-        "summary": summary.to_dict(orient="records")}, indent=2, default=float))
-    cases_tab = pd.DataFrame([(c.name, c.effect or "-", c.describe(), c.why) for c in sweep.cases],
-                             columns=["case", "effect", "parameters (SI)", "why realistic"])
-    cols = ["case", "slope_um", "intercept_um", "r2", "max_lo_um", "max_hi_um", "growth", "median_hi_um",
-            "first_motion_hi_um", "first_over_median_hi", "linear", "avalanche"]
-    per_level = ["f_l_star", "threshold_amplitude", "resolution_um", "median_um", "min_um", "first_increment_um",
-                 "first_motion_um", "first_motion_pulse", "later_max_um", "max_pulse"]
-    shown = [BASE_CASE.name] + [c for c in (top[0] if top else None,) if c and c != BASE_CASE.name]
-    lvl_tables = "\n\n".join(f"**{name}**\n\n{md_table(df[df['case'] == name][per_level])}" for name in shown)
-    lo, hi = sweep.f_l_star.min(), sweep.f_l_star.max()
-    n = int(df["n_pulses"].iloc[0])
-    combo = [c.name for c in sweep.cases if "+" in c.name]
+        "best_two": best, **verdicts, "summary": summary.to_dict(orient="records")}, indent=2, default=float))
+    md = _intro_md(sweep, int(df["n_pulses"].iloc[0])) + _results_md(sweep, summary, best, top, verdicts)
+    (out / "paper_effects.md").write_text(md)
+    return out / "paper_effects.md"
+
+
+def _verdicts(summary: pd.DataFrame) -> dict[str, list[str]]:
+    """The non-base cases that reproduce both claims, the linear growth, the avalanche."""
+    S = summary.set_index("case")
+    cases = [c for c in S.index if c != BASE_CASE.name]
+    return {"reproduces": [c for c in cases if S.loc[c, "reproduces"]],
+            "linear": [c for c in cases if S.loc[c, "linear"]],
+            "avalanche": [c for c in cases if S.loc[c, "avalanche"]]}
+
+
+def _answer(summary: pd.DataFrame, yes: list[str], hi: float) -> str:
     if yes:
-        answer = (f"**{', '.join(yes)}** reproduce{'s' if len(yes) == 1 else ''} both claims: the resolution grows "
-                  "linearly with f_l* and the first motion at high friction is an avalanche.")
-    else:
-        answer = "No single case reproduces both claims with these criteria."
-        near = [r for r in sorted(summary.to_dict(orient="records"), key=score, reverse=True)
-                if r["case"] != BASE_CASE.name][:1]
-        if near:
-            r = near[0]
-            answer += (f" Closest: **{r['case']}** ({_verdict_words(r)}: max = {r['slope_um']:.3g} f_l* + "
-                       f"{r['intercept_um']:.3g} um, R^2 {r['r2']:.2f}, growth x{r['growth']:.2f}, first motion "
-                       f"{r['first_over_median_hi']:.2f} x median at f_l* = {hi:.3g}).")
-    md = f"""# The paper's friction study with the effect library (hdrive)
+        return (f"**{', '.join(yes)}** reproduce{'s' if len(yes) == 1 else ''} both claims: the resolution grows "
+                "linearly with f_l* and the first motion at high friction is an avalanche.")
+    answer = "No single case reproduces both claims with these criteria."
+    near = [r for r in sorted(summary.to_dict(orient="records"), key=score, reverse=True)
+            if r["case"] != BASE_CASE.name][:1]
+    if near:
+        r = near[0]
+        answer += (f" Closest: **{r['case']}** ({_verdict_words(r)}: max = {r['slope_um']:.3g} f_l* + "
+                   f"{r['intercept_um']:.3g} µm, R^2 {r['r2']:.2f}, growth x{r['growth']:.2f}, first motion "
+                   f"{r['first_over_median_hi']:.2f} x median at f_l* = {hi:.3g}).")
+    return answer
+
+
+def _intro_md(sweep: EffectsSweep, n: int) -> str:
+    lo, hi = sweep.f_l_star.min(), sweep.f_l_star.max()
+    return f"""# The paper's friction study with the effect library (hdrive)
 
 The paper (section V) reports that the impulse resolution (the MAX increment) **degrades linearly with the load
 friction level f_l\\*** and that at high friction **the first increment is very large (an "avalanche")**, then
@@ -525,7 +548,25 @@ and the max at f_l\\* = {hi:.3g} is at least {LINEAR_GROWTH:g}x the max at f_l\\
 f_l\\* = {hi:.3g} the arm's first motion (its first nonzero increment; the pulses before it only wind the spring) is
 more than {AVALANCHE_RATIO:g}x the median increment.
 
-## Answer
+"""
+
+
+def _results_md(sweep: EffectsSweep, summary: pd.DataFrame, best: list[str], top: list[str],
+                verdicts: dict[str, list[str]]) -> str:
+    df = sweep.to_frame()
+    hi = sweep.f_l_star.max()
+    yes, lin, ava = verdicts["reproduces"], verdicts["linear"], verdicts["avalanche"]
+    answer = _answer(summary, yes, hi)
+    combo = [c.name for c in sweep.cases if "+" in c.name]
+    cases_tab = pd.DataFrame([(c.name, c.effect or "-", c.describe(), c.why) for c in sweep.cases],
+                             columns=["case", "effect", "parameters (SI)", "why realistic"])
+    cols = ["case", "slope_um", "intercept_um", "r2", "max_lo_um", "max_hi_um", "growth", "median_hi_um",
+            "first_motion_hi_um", "first_over_median_hi", "linear", "avalanche"]
+    per_level = ["f_l_star", "threshold_amplitude", "resolution_um", "median_um", "min_um", "first_increment_um",
+                 "first_motion_um", "first_motion_pulse", "later_max_um", "max_pulse"]
+    shown = [BASE_CASE.name] + [c for c in (top[0] if top else None,) if c and c != BASE_CASE.name]
+    lvl_tables = "\n\n".join(f"**{name}**\n\n{md_table(df[df['case'] == name][per_level])}" for name in shown)
+    return f"""## Answer
 
 {answer} Linear growth: {', '.join(lin) or 'none'}; avalanche: {', '.join(ava) or 'none'}. Best two cases of
 different effects: {', '.join(best) or 'n/a'}{f"; their combination `{combo[0]}` is in the tables" if combo else ''}.
@@ -551,11 +592,9 @@ All cases and levels: `paper_effects.csv`.
 
 {_claims(sweep, summary)}
 
-## Why (from the equations of `ident/effects.py`)
+## Why (from the equations of `ident/model/effects.py`)
 {_explanations(sweep, summary)}
 """
-    (out / "paper_effects.md").write_text(md)
-    return out / "paper_effects.md"
 
 
 __all__ = ["AVALANCHE_RATIO", "BASE_CASE", "EFFECT_CASES", "EffectCase", "EffectsSweep", "LINEAR_GROWTH",
