@@ -2,7 +2,7 @@
 
 Every other description of the plant's interface is generated from or checked against this table:
 both modelDescription.xml files (FMI 2.0 and 3.0), the C header ``model_vars.h`` that the C model and the FMI
-glue use for value references, start values and allowed ranges, the parameter handling of ``ident.params``, and
+glue use for value references, start values and allowed ranges, the parameter handling of ``ident.model.params``, and
 the test that holds ``modelica/HarmonicDrive`` to the same names, units and start values.
 
 All values are SI; time is in seconds. The nominal drive of ``shared/docs/physics.md`` section 2 gives the start

@@ -1,4 +1,4 @@
-"""The rigid-model discrepancy workflow (ident/diagnose_rigid.py): on the EMPS benchmark it names viscous and then
+"""The rigid-model discrepancy workflow (ident/diagnosis/rigid.py): on the EMPS benchmark it names viscous and then
 asymmetric friction with the published relative errors (4.0834 %, 3.1117 %), using DATA_EMPS_PULSES as held-back
 data; on a synthetic inverse-dynamics log with a hidden viscous term it finds it; on motor-only logs of the FMU (a
 stiff drive) it names the hidden viscous friction with the rigid drive's magnitude and recovers the FMU's

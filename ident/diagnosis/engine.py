@@ -5,11 +5,11 @@ For a two-inertia log (torque, motor encoder, load sensor):
 
 1. **Split**: the first 70 % of the log trains every model; the last 30 % (or a second log) is held back and only
    ever predicted (the model simulates the whole log, so the held-back part is a true multi-second prediction).
-2. **Base model**: ``ident.identify`` (K*, J_l*, f_l*, initial deflection) on the training part.
+2. **Base model**: ``ident.fitting.identify`` (K*, J_l*, f_l*, initial deflection) on the training part.
 3. **Where they disagree**: the residuals of the model's simulation, localised by regime (load/motor stuck or
    slipping, speed bands, direction, motor angle phase 2 q_m mod 2 pi, torque level) in a ranked table: a regime
    whose share of the residual energy is well above its share of the samples is where the model is wrong.
-4. **Candidates**: every library effect not yet in the model (``ident.effects``) is added with the FMU parameters
+4. **Candidates**: every library effect not yet in the model (``ident.model.effects``) is added with the FMU parameters
    of its own (the C model implements the same formulas as the CasADi terms) and the whole model is refitted by
    output error (CasADi + IPOPT through the FMU, as in ``identify``). Each candidate gets two scores:
    *signature*: the share of the current residual that one Gauss-Newton step in the effect's direction (beyond
@@ -34,7 +34,7 @@ For a two-inertia log (torque, motor encoder, load sensor):
 
 For a rigid-model start with a load sensor, the base model is the rigid kinematics q_l = r q_m and the only
 candidate that can fix it is ``flexibility`` (the two-inertia identification); after it the two-inertia workflow
-continues. A motor-only rigid log (e.g. EMPS) goes to ``ident.diagnose_rigid`` (equation error).
+continues. A motor-only rigid log (e.g. EMPS) goes to ``ident.diagnosis.rigid`` (equation error).
 """
 from __future__ import annotations
 

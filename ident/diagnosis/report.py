@@ -72,7 +72,7 @@ def _markdown(diag: Diagnosis, files: dict[str, str]) -> str:
              "only predicted (the model simulates the whole log). A candidate effect is accepted only when the "
              "held-back cost falls significantly and the model without it, refitted, predicts worse; the model with "
              "it is then identified from scratch; at the end every named effect must survive backward elimination "
-             "(see `ident/diagnose.py`). `residual_over_noise_load`: load residual RMS / load sensor noise (1 = the "
+             "(see `ident/diagnosis/engine.py`). `residual_over_noise_load`: load residual RMS / load sensor noise (1 = the "
              "model explains everything but the noise).", "",
              "## The gap after every step", "", md_table(steps[keep]), "",
              "## Named effects", ""]

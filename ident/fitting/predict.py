@@ -2,7 +2,7 @@
 
 The point prediction runs the paper's protocols (``impulse_resolution``, ``linear_resolution``) on the FMU with the
 fitted parameters; the interval comes from Monte Carlo: parameter draws from the fit's (sandwich) covariance of
-(ln K*, ln J_l*, ln f_l*), each run through the same protocols on Dask (``ident.distributed``), then the 2.5 / 97.5
+(ln K*, ln J_l*, ln f_l*), each run through the same protocols on Dask (``ident.protocols.batch``), then the 2.5 / 97.5
 percentiles of the draws.
 """
 from __future__ import annotations

@@ -103,7 +103,7 @@ def friction_sweep(params: DriveParams | None = None, levels: int | Sequence[flo
                    **protocol: Any) -> FrictionSweep:
     """The impulse protocol at each load-friction level (f_l* = f_l/f_m), other parameters from ``params``.
 
-    Levels run in parallel on Dask (``ident.distributed.run_batch``: local worker processes by default, the
+    Levels run in parallel on Dask (``ident.protocols.batch.run_batch``: local worker processes by default, the
     cluster at ``scheduler`` if given, serial with ``workers=0``); the results do not depend on where they ran.
     """
     from .batch import run_batch

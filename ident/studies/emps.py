@@ -107,7 +107,7 @@ def load_emps(path: str | Path) -> DriveLog:
 
     ``motor_torque_Nm`` holds the force ``gtau * vir`` [N], ``motor_pos_rad`` the motor position ``qm`` [m];
     ``extra`` holds ``qg`` (and ``pulses_N`` when present, as float), ``meta_extra`` the constants ``gtau``, ``kp``,
-    ``kv``. Raises :class:`ident.io.LogError` naming the file and what is wrong (missing key, bad shape, ...).
+    ``kv``. Raises :class:`ident.fitting.logs.LogError` naming the file and what is wrong (missing key, bad shape, ...).
     """
     path = Path(path)
     if not path.is_file():

@@ -123,7 +123,7 @@ f_l* (R^2 = {study.sweep.trend()['r2']:.2f}) nor its 0.30 um at f_l* = 0.1. What
 must be something that couples load friction into the motor's step, e.g. viscous or Stribeck friction, hysteresis
 in the flexspline or a softer/hardening spring: the discrepancy workflow tests such effects; the parameters here are
 not tuned to the paper's figures. The sweep with and without each effect of the library, at realistic magnitudes,
-is a separate report (`python3 -m ident paper-effects --out DIR` writes `paper_effects.md`, `ident.paper_effects`;
+is a separate report (`python3 -m ident paper-effects --out DIR` writes `paper_effects.md`, `ident.studies.paper_effects`;
 not run by the study because with effects on the plant integrates with RK4 and the sweep takes minutes).
 
 **High friction, first increment.** At f_l* = {av['f_l_star']:.2g} the first {av['leading_zero_pulses']}

@@ -2,15 +2,15 @@
 the impulse resolution grow linearly with the load friction level f_l* and give a large first increment (an
 "avalanche") at high friction, as the paper reports?
 
-The base model does not (``ident.report``): the threshold search pins the median increment to the motor's own slide
+The base model does not (``ident.studies.paper``): the threshold search pins the median increment to the motor's own slide
 A(A-1)W*^2/2 (times r L) at eps1, and load friction only adds bounded scatter. Here every effect of the library
-(``ident.effects``; equations there) is switched on at one or two realistic magnitudes and the impulse protocol
-(``ident.resolution.impulse_resolution``) is run at every friction level, with and without it.
+(``ident.model.effects``; equations there) is switched on at one or two realistic magnitudes and the impulse protocol
+(``ident.protocols.resolution.impulse_resolution``) is run at every friction level, with and without it.
 
 - ``EFFECT_CASES``: the cases (nominal drive + one effect at one magnitude), each with the reason its magnitude is
   realistic. A parameter whose size naturally scales with the load friction is given per unit f_l
   (``EffectCase.per_f_l``) and follows f_l through the sweep; the others are fixed properties of the gear.
-- ``effects_sweep``: cases x levels on Dask (``ident.distributed.run_batch``; one task = one case at one level).
+- ``effects_sweep``: cases x levels on Dask (``ident.protocols.batch.run_batch``; one task = one case at one level).
 - ``summarize``: per case, the linear fit of the MAX increment (the resolution) vs f_l*, the first motion over the
   median at the highest level, and the two verdicts (criteria ``LINEAR_R2``, ``LINEAR_GROWTH``, ``AVALANCHE_RATIO``).
 - ``write_paper_effects``: runs the sweep, the combination of the two best effects, and writes ``paper_effects.md``
