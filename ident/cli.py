@@ -352,16 +352,91 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+# Smallest value of each numeric option, checked before any work starts (option -> minimum; per command where a
+# command allows less, e.g. diagnose --pulses 0 skips the predicted resolution).
+_MINIMA: dict[str, float] = {"workers": 0, "draws": 2, "pulses": 1, "steps": 1, "levels": 2, "max_effects": 1,
+                             "candidate_budget": 0}
+_MINIMA_BY_COMMAND: dict[tuple[str, str], float] = {("diagnose", "pulses"): 0}
+_POSITIVE = ("eps1_um", "amplitude")
+
+
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread so that every ``finally`` runs (staging folders, unpacked FMUs, Dask
+    workers are cleaned up) before the process exits with 143."""
+
+
+def _on_sigterm(signum: int, frame: Any) -> None:
+    raise Terminated()
+
+
+def preflight(args: argparse.Namespace) -> None:
+    """Everything about the command line that can be checked before the work starts: numeric options in range, the
+    output folder writable, the Dask scheduler reachable. ValueError naming the option and the allowed range."""
+    import math
+
+    for name, value in vars(args).items():
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            continue
+        flag = "--" + name.replace("_", "-")
+        if not math.isfinite(value):
+            raise ValueError(f"{flag} = {value!r}: must be a finite number")
+        low = _MINIMA_BY_COMMAND.get((args.command, name), _MINIMA.get(name))
+        if low is not None and value < low:
+            raise ValueError(f"{flag} = {value!r}: must be >= {low:g}")
+        if name in _POSITIVE and value <= 0:
+            raise ValueError(f"{flag} = {value!r}: must be > 0")
+    if getattr(args, "out", None):
+        from .common.output import check_output_dir
+
+        check_output_dir(args.out)
+    if getattr(args, "scheduler", None):
+        from .protocols.batch import connect
+
+        connect(args.scheduler).close()
+
+
+def _run(args: argparse.Namespace) -> tuple[int, Any]:
+    """(exit code, result): 0 with the command's result, 2 for bad input or a named failure, 130 / 143 when
+    interrupted, 1 for an internal error (a bug: its traceback only with HDRIVE_TRACEBACK=1)."""
+    import os
+
+    from .common.output import OutputDirError
+    from .fitting.logs import LogError
+    from .protocols.batch import BatchError
+
+    say = lambda msg: print(f"hdrive {args.command}: {msg}", file=sys.stderr)  # noqa: E731
     try:
-        result = args.func(args)
-    except (ParameterError, ValueError, ThresholdNotFound, NoConsistentStep, SettleError, RuntimeError) as exc:
-        print(f"hdrive {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    if args.json:
+        preflight(args)
+        return 0, args.func(args)
+    except KeyboardInterrupt:
+        say("interrupted (Ctrl-C); no output was left half-written")
+        return 130, None
+    except Terminated:
+        say("terminated (SIGTERM); no output was left half-written")
+        return 143, None
+    except (ParameterError, LogError, OutputDirError, BatchError, ValueError, ThresholdNotFound, NoConsistentStep,
+            SettleError, RuntimeError, OSError) as exc:
+        say(f"error: {exc}")
+        return 2, None
+    except Exception as exc:  # a bug, not bad input
+        if os.environ.get("HDRIVE_TRACEBACK"):
+            raise
+        say(f"internal error: {type(exc).__name__}: {exc} (please report it; HDRIVE_TRACEBACK=1 shows where)")
+        return 1, None
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    import signal
+
+    args = build_parser().parse_args(argv)
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        code, result = _run(args)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    if code == 0 and args.json:
         print(json.dumps(result, indent=2))
-    return 0
+    return code
 
 
 if __name__ == "__main__":
