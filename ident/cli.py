@@ -395,7 +395,7 @@ def preflight(args: argparse.Namespace) -> None:
         connect(args.scheduler).close()
 
 
-def _run(args: argparse.Namespace) -> tuple[int, Any]:
+def run(args: argparse.Namespace) -> tuple[int, Any]:
     """(exit code, result): 0 with the command's result, 2 for bad input or a named failure, 130 / 143 when
     interrupted, 1 for an internal error (a bug: its traceback only with HDRIVE_TRACEBACK=1)."""
     import os
@@ -431,7 +431,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
-        code, result = _run(args)
+        code, result = run(args)
     finally:
         signal.signal(signal.SIGTERM, previous)
     if code == 0 and args.json:
