@@ -52,7 +52,7 @@ void hd_set_defaults(HDModel *m) {
     HD_INTEGER_PARAMETERS(X)
 #undef X
     m->motor_stuck = m->load_stuck = 1;
-    m->motor_dir = m->load_dir = 1;
+    m->motor_dir = m->load_dir = m->hyst_dir = 1; /* valid modes in every state, initialized or not */
 }
 
 HDCausality hd_causality(uint32_t vr, HDType type) {
@@ -756,6 +756,7 @@ static int state_finite(const HDModel *m) {
 
 #define HD_SUBSTEPS_PER_PERIOD 400.0
 #define HD_TRANSIENT_RESOLUTION 0.05
+#define HD_SUBSTEP_WORK 7.0 /* model evaluations of one substep without events (counted in fx_do_step) */
 
 static FxState fx_deriv(const HDModel *m, const FxState *y) {
     FxForces f = fx_forces(m, y);
@@ -838,7 +839,7 @@ static double fx_bisect(const HDModel *m, const FxState *y0, double t, double le
         double mid = lo + 0.5 * (hi - lo);
         if (mid <= lo || mid >= hi) break;
         if (t + mid * len == t) { lo = mid; continue; }
-        work->used += 4;
+        work->used += 5; /* an RK4 step and the event function */
         FxState y = fx_rk4(m, y0, mid * len);
         if (fx_fires(m, e, &y)) hi = mid; else lo = mid;
     }
@@ -862,11 +863,11 @@ static HDStatus fx_substep(const HDModel *m, double h, double *h_sub, char *err,
         return HD_OK;
     }
     double n = ceil(h / h_max);
-    if (!(4.0 * n <= (double)HD_WORK_BUDGET)) { /* refused before any work: the substeps alone exceed the budget */
+    if (!(HD_SUBSTEP_WORK * n <= (double)HD_WORK_BUDGET)) { /* refused before any work: the substeps alone */
         snprintf(err, errlen, "a step of %g s needs %g RK4 substeps of at most %g s (400 per period of the stiffest "
                               "oscillation), more than the %lld model evaluations one doStep may do; use "
-                              "communication steps of at most %.3g s",
-                 h, n, h_max, HD_WORK_BUDGET, h_max * (double)(HD_WORK_BUDGET / 4));
+                              "communication steps of at most %.2g s",
+                 h, n, h_max, HD_WORK_BUDGET, 0.5 * h_max * (double)HD_WORK_BUDGET / HD_SUBSTEP_WORK);
         return HD_ERROR;
     }
     *h_sub = n >= 1.0 ? h / n : h;
@@ -929,9 +930,10 @@ static int step_failed(const HDModel *w, const Work *work, const HDStepStats *st
         return 1;
     }
     if (work_exhausted(work)) {
+        /* The step got as far as t on its budget: half of that leaves room for a busier stretch. */
         snprintf(err, errlen, "a step of %g s needs more than the %lld model evaluations one doStep may do (%lld "
-                              "switching events in its first %.3g s); use communication steps of at most %.3g s",
-                 h, (long long)work->limit, (long long)st->events, t, t > 0.0 ? t : 0.0);
+                              "switching events in its first %.3g s); use communication steps of at most %.2g s",
+                 h, (long long)work->limit, (long long)st->events, t, 0.5 * t);
         return 1;
     }
     return 0;
@@ -947,9 +949,9 @@ static HDStatus fx_do_step(HDModel *w, double h, double t0, Work *work, HDStepSt
         int last = h - t <= cap * (1.0 + 1e-12);
         double len = last ? h - t : cap;
         FxState y0 = fx_state(w), y1 = fx_rk4(w, &y0, len);
-        work->used += 4;
         FxEvent ev[7];
         int n = fx_events(w, ev), which = -1;
+        work->used += 6 + n; /* substep length, RK4 step, commit, and every event function at its end */
         double theta = 1.0;
         for (int i = 0; i < n; ++i) {
             if (!fx_fires(w, &ev[i], &y1)) continue;
@@ -961,7 +963,7 @@ static HDStatus fx_do_step(HDModel *w, double h, double t0, Work *work, HDStepSt
             t = last ? h : t + len;
         } else {
             FxState y = fx_rk4(w, &y0, theta * len);
-            work->used += 4;
+            work->used += 7; /* the RK4 step to the event, its commit and the new decisions */
             fx_commit(w, &y);
             t += theta * len; /* > t: fx_bisect never returns a fraction that leaves the clock where it was */
             if (ev[which].kind == FX_MOTOR_VELOCITY) w->v_m = 0.0;
@@ -982,6 +984,7 @@ static HDStatus cf_do_step(HDModel *w, double h, double t0, Work *work, HDStepSt
         Segment s = make_segment(w, work, t);
         EventFn ev[6];
         int n = segment_events(w, &s, ev);
+        work->used += 1; /* the segment's and its events' coefficients */
         double rest = h - t, t_event = rest;
         int which = -1;
         for (int i = 0; i < n; ++i) {
@@ -1021,11 +1024,13 @@ static int outputs_finite(const HDModel *m) {
  *   of an event function) stops when the budget is spent;
  * - a step that needs more RK4 substeps than the budget allows (a stiff spring, a huge step) is refused before any
  *   work is done.
- * The size: one evaluation costs at most about 150 ns at -O2 (every effect on; 45-80 ns in closed form) and 220 ns in
- * the AddressSanitizer + UBSan build (bench/fmu_robustness.py measures it), so 2e6 evaluations keep every doStep
- * under about 0.3 s of CPU (0.45 s sanitized): a margin of 2 or more on the 1 s a co-simulation master may expect.
- * They allow about 1,250 periods of the stiffest oscillation per step with the general propagator (400 RK4 substeps
- * per period, 4 evaluations each) or roughly 10,000 stick-slip events in closed form (about 200 evaluations each). */
+ * The size: counted this way one evaluation costs 40-90 ns at -O2 for realistic drives, up to about 150 ns for the
+ * costliest effect combinations measured (kinematic error, hysteresis and direction-dependent friction at once),
+ * and about 1.5 times that in the AddressSanitizer + UBSan build (bench/fmu_robustness.py measures it). 2e6
+ * evaluations therefore keep every doStep under about 0.3 s of CPU (0.5 s sanitized): a margin of 2-3 on the 1 s a
+ * co-simulation master may expect, with room for a busy machine. They allow about 600 periods of the stiffest
+ * oscillation per step with the general propagator (400 RK4 substeps per period, about 8 evaluations each) or
+ * roughly 10,000 stick-slip events in closed form (about 200 evaluations each). */
 HDStatus hd_do_step(HDModel *m, double h, HDStepStats *stats, char *err, size_t errlen) {
     HDStepStats st = {0, 0};
     if (stats) *stats = st;
