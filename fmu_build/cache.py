@@ -67,7 +67,7 @@ def _problem(entry: Path, filename: str) -> str | None:
     if not expected:
         return "its checksum file is missing"
     if actual != expected:
-        return "its checksum does not match (truncated or modified)"
+        return "its checksum does not match: truncated or modified"
     _VERIFIED[key] = actual
     return None
 
