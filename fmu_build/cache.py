@@ -124,6 +124,7 @@ def _publish(root: Path, key: str, filename: str, make: Callable[[Path], None]) 
     try:
         make(staging / filename)
         (staging / f"{filename}.sha256").write_text(f"{sha256_file(staging / filename)}  {filename}\n")
+        staging.chmod(0o755)  # mkdtemp's 0700 would hide the entry from other users of a shared cache
         try:
             os.rename(staging, root / key)
         except OSError as exc:
