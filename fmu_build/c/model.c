@@ -33,6 +33,10 @@
  * term -, a stuck body's N leaving its band, dd changing sign) is located by bisection to the last bit on the
  * substep fraction, each trial being one RK4 step from the substep start; that very state is committed and the
  * modes are re-decided from it (no Zeno loops).
+ *
+ * Both paths count their work: every doStep does at most HD_WORK_BUDGET evaluations of the model's equations and
+ * every event advances time, so each call returns within a bounded CPU time for any step size and any state, or is
+ * refused with an error naming a step size that fits (see hd_do_step).
  */
 #include "model.h"
 
