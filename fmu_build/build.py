@@ -26,7 +26,7 @@ from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
 from . import variables as V
-from .cache import BuildError, cache_dir, cached_file, interruptible
+from .cache import BuildError, cache_dir, cached_file, interruptible  # noqa: F401 - BuildError, cache_dir re-exported
 
 C_DIR = Path(__file__).resolve().parent / "c"
 MODEL_SOURCES = ("model.c", "model.h")
