@@ -6,12 +6,14 @@ plus the FMI glue with the system C compiler against the FMI headers shipped in 
 sources (and ``buildDescription.xml`` for FMI 3) so that other platforms can rebuild it (``fmpy compile``).
 
 Built FMUs are cached under ``$HDRIVE_CACHE`` (default ``~/.cache/hdrive``) by a hash of everything that goes into
-them, so a change of the C sources or of the table rebuilds automatically, and concurrent builders (Dask workers)
-never see a half-written file.
+them (sources, table, flags, platform; not the compiler, so a warm cache needs none), so a change of the C sources or
+of the table rebuilds automatically. ``cache.py`` verifies every entry's checksum before use, rebuilds a damaged
+one, publishes entries atomically for concurrent builders (Dask workers) and survives a read-only cache folder.
 """
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import hashlib
 import os
 import platform
@@ -24,6 +26,7 @@ from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
 from . import variables as V
+from .cache import BuildError, cache_dir, cached_file, interruptible  # noqa: F401 - BuildError, cache_dir re-exported
 
 C_DIR = Path(__file__).resolve().parent / "c"
 MODEL_SOURCES = ("model.c", "model.h")
@@ -31,10 +34,6 @@ GLUE = {2: "fmi2.c", 3: "fmi3.c"}
 OPT_FLAGS = ["-O2"]
 SANITIZE_FLAGS = ["-O1", "-g", "-fno-omit-frame-pointer", "-fsanitize=address,undefined",
                   "-fno-sanitize-recover=undefined"]
-
-
-class BuildError(RuntimeError):
-    """The FMU could not be built (no C compiler, compile error, missing FMI headers)."""
 
 
 def fmi_include_dir() -> Path:
@@ -85,6 +84,12 @@ def model_vars_header(token: str, table: tuple[V.Variable, ...] = V.VARIABLES) -
         return f'X({v.vr}u, {v.name}, "{v.unit or ""}")'
 
     params = [v for v in table if v.causality == "parameter"]
+    lines.append("")
+    lines += [f"#define HD_LOG_{c.name} {i}u" for i, c in enumerate(V.LOG_CATEGORIES)]
+    default = " | ".join(f"(1u << HD_LOG_{c.name})" for c in V.LOG_CATEGORIES if c.default) or "0u"
+    lines.append(f"#define HD_LOG_DEFAULT_MASK ({default})")
+    lines.append(f'#define HD_LOG_CATEGORY_LIST "{", ".join(c.name for c in V.LOG_CATEGORIES)}"')
+    xlist("HD_LOG_CATEGORIES", [f'X({i}u, "{c.name}")' for i, c in enumerate(V.LOG_CATEGORIES)])
     xlist("HD_REAL_PARAMETERS", [settable(v) for v in params if v.type == "Real"])
     xlist("HD_INTEGER_PARAMETERS", [settable(v) for v in params if v.type == "Integer"])
     xlist("HD_REAL_INPUTS", [settable(v) for v in table if v.causality == "input"])
@@ -95,6 +100,35 @@ def model_vars_header(token: str, table: tuple[V.Variable, ...] = V.VARIABLES) -
 
 
 # ------------------------------------------------------------------------------------------- XML ---------------
+
+def package_version() -> str:
+    """hdrive's version (the FMU's ``version``): the installed distribution's, else pyproject.toml's."""
+    try:
+        from importlib.metadata import version
+
+        return version("hdrive")
+    except Exception:  # not installed (a bare checkout): read it from pyproject.toml
+        import tomllib
+
+        pyproject = Path(__file__).resolve().parent.parent / "pyproject.toml"
+        return str(tomllib.loads(pyproject.read_text())["project"]["version"])
+
+
+def generation_time() -> str:
+    """UTC build time for ``generationDateAndTime``; ``$SOURCE_DATE_EPOCH`` makes it reproducible."""
+    epoch = os.environ.get("SOURCE_DATE_EPOCH")
+    when = (datetime.datetime.fromtimestamp(int(epoch), datetime.timezone.utc) if epoch and epoch.isdigit()
+            else datetime.datetime.now(datetime.timezone.utc))
+    return when.strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def _log_categories() -> str:
+    out = ["  <LogCategories>"]
+    out += [f"    <Category name={quoteattr(c.name)} description={quoteattr(c.description)}/>"
+            for c in V.LOG_CATEGORIES]
+    out.append("  </LogCategories>")
+    return "\n".join(out)
+
 
 def _unit_definitions() -> str:
     used = sorted({v.unit for v in V.VARIABLES if v.unit})
@@ -127,12 +161,17 @@ def _attrs(v: V.Variable, fmi_version: int) -> str:
     return " ".join(parts)
 
 
-def model_description(fmi_version: int, token: str, table: tuple[V.Variable, ...] = V.VARIABLES) -> str:
+def model_description(fmi_version: int, token: str, table: tuple[V.Variable, ...] = V.VARIABLES,
+                      generated: str | None = None) -> str:
+    """modelDescription.xml of FMI ``fmi_version`` from the variable table (``generated``: generationDateAndTime,
+    the current UTC time by default)."""
     head = (f'<?xml version="1.0" encoding="UTF-8"?>\n<fmiModelDescription fmiVersion="{fmi_version}.0" '
             f'modelName="{V.MODEL_NAME}" '
             + (f'guid="{token}"' if fmi_version == 2 else f'instantiationToken="{token}"')
             + ' description="Harmonic-drive joint: two inertias, gear ratio, torsional spring, exact stick-slip '
-              'friction on both sides (hdrive)" generationTool="hdrive fmu_build" variableNamingConvention="flat"'
+              f'friction on both sides (hdrive)" author={quoteattr(V.AUTHOR)} version={quoteattr(package_version())} '
+              f'generationTool="hdrive fmu_build" generationDateAndTime="{generated or generation_time()}" '
+              'variableNamingConvention="flat"'
             + (' numberOfEventIndicators="0"' if fmi_version == 2 else "") + ">")
     caps = ('modelIdentifier="HarmonicDrive" canHandleVariableCommunicationStepSize="true" '
             + ('canGetAndSetFMUstate="true" canSerializeFMUstate="true" canInterpolateInputs="false"'
@@ -145,7 +184,7 @@ def model_description(fmi_version: int, token: str, table: tuple[V.Variable, ...
         cosim = f"  <CoSimulation {caps}>\n    <SourceFiles>{files}</SourceFiles>\n  </CoSimulation>"
     else:
         cosim = f"  <CoSimulation {caps}/>"
-    out = [head, cosim, _unit_definitions(),
+    out = [head, cosim, _unit_definitions(), _log_categories(),
            '  <DefaultExperiment startTime="0" stopTime="1" stepSize="0.001"/>', "  <ModelVariables>"]
     for v in table:
         desc = f" description={quoteattr(v.description)}"
@@ -198,6 +237,8 @@ def _shared_suffix() -> str:
 
 
 def _fingerprint(fmi_version: int, sanitize: bool, starts: dict[str, float] | None = None) -> str:
+    """Hash of everything that goes into an FMU: sources, table, this file, version, flags and platform. Not the
+    compiler: looking an entry up must not need one (a warm cache works without a C compiler)."""
     h = hashlib.sha256()
     if starts:
         h.update(repr(sorted(starts.items())).encode())
@@ -205,19 +246,13 @@ def _fingerprint(fmi_version: int, sanitize: bool, starts: dict[str, float] | No
         h.update((C_DIR / name).read_bytes())
     h.update(Path(V.__file__).read_bytes())
     h.update(Path(__file__).read_bytes())
-    h.update(f"{fmi_version}|{sanitize}|{compiler()}|{sys.platform}|{platform.machine()}".encode())
+    h.update(f"{fmi_version}|{sanitize}|{package_version()}|{sys.platform}|{platform.machine()}".encode())
     return h.hexdigest()
 
 
 def _token(fingerprint: str) -> str:
     f = fingerprint
     return f"{{{f[:8]}-{f[8:12]}-{f[12:16]}-{f[16:20]}-{f[20:32]}}}"
-
-
-def cache_dir() -> Path:
-    root = os.environ.get("HDRIVE_CACHE") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "hdrive")
-    return Path(root)
 
 
 def sanitize_requested() -> bool:
@@ -248,27 +283,46 @@ def build_fmu(fmi_version: int = 2, out_dir: str | os.PathLike | None = None, sa
               force: bool = False, starts: dict[str, float | int] | None = None) -> Path:
     """Return the path of HarmonicDrive.fmu for ``fmi_version`` (2 or 3), building it if needed.
 
-    With ``out_dir`` the FMU is (re)built and written to ``out_dir/HarmonicDrive.fmu``; otherwise it comes from the
-    cache, keyed by a hash of the C sources, the variable table, the compiler and the flags. ``starts``: parameter
-    start values to compile in (and write into the modelDescription) instead of the table's, e.g. a fitted drive.
+    The FMU comes from the cache, keyed by a hash of the C sources, the variable table and the flags, and checked
+    against its checksum (a damaged entry is rebuilt once). With ``out_dir`` it is also copied to
+    ``out_dir/HarmonicDrive.fmu`` (atomically) and that path is returned. ``starts``: parameter start values to
+    compile in (and write into the modelDescription) instead of the table's, e.g. a fitted drive.
     """
     if fmi_version not in (2, 3):
         raise ValueError(f"fmi_version must be 2 or 3, got {fmi_version!r}")
     sanitize = sanitize_requested() if sanitize is None else sanitize
     table = table_with_starts(starts)
     fingerprint = _fingerprint(fmi_version, sanitize, starts)
+    key = f"fmi{fmi_version}-{'asan-' if sanitize else ''}{fingerprint[:16]}"
+
+    def make(dest: Path) -> None:
+        with tempfile.TemporaryDirectory(prefix="hdrive-build-") as tmp:
+            shutil.copyfile(_build_into(Path(tmp), fmi_version, _token(fingerprint), sanitize, table), dest)
+
+    fmu = cached_file(key, "HarmonicDrive.fmu", make, f"FMI {fmi_version} FMU", force=force)
     if out_dir is None:
-        target = cache_dir() / f"fmi{fmi_version}-{'asan-' if sanitize else ''}{fingerprint[:16]}" / "HarmonicDrive.fmu"
-        if target.is_file() and not force:
-            return target
-    else:
-        target = Path(out_dir) / "HarmonicDrive.fmu"
-    target.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix="hdrive-build-") as tmp:
-        fmu = _build_into(Path(tmp), fmi_version, _token(fingerprint), sanitize, table)
-        staged = target.parent / f".{target.name}.{os.getpid()}.tmp"
-        shutil.copyfile(fmu, staged)
-        os.replace(staged, target)  # atomic: readers see the old file or the new one, never a partial one
+        return fmu
+    return _copy_out(fmu, Path(out_dir))
+
+
+def _copy_out(fmu: Path, out_dir: Path) -> Path:
+    """Copy ``fmu`` to ``out_dir/HarmonicDrive.fmu`` through a staged file: never a half-written FMU."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BuildError(f"cannot create the output folder {out_dir}: {exc.strerror or exc}") from None
+    target = out_dir / "HarmonicDrive.fmu"
+    if target.is_dir():
+        raise BuildError(f"{target} is a folder; remove it or choose another output folder")
+    staged = out_dir / f".{target.name}.{os.getpid()}.tmp"
+    try:
+        with interruptible():
+            shutil.copyfile(fmu, staged)
+            os.replace(staged, target)
+    except OSError as exc:
+        raise BuildError(f"cannot write {target}: {exc.strerror or exc}") from None
+    finally:
+        staged.unlink(missing_ok=True)
     return target
 
 
@@ -301,19 +355,21 @@ def _build_into(tmp: Path, fmi_version: int, token: str, sanitize: bool,
 
 
 def build_runner() -> Path:
-    """The importer-side stepping loop (``c/runner.c``) as a shared library, cached like the FMU."""
-    h = hashlib.sha256((C_DIR / "runner.c").read_bytes() + f"{compiler()}|{platform.machine()}".encode())
-    target = cache_dir() / f"runner-{h.hexdigest()[:16]}" / f"hd_runner{_shared_suffix()}"
-    if target.is_file():
-        return target
-    target.parent.mkdir(parents=True, exist_ok=True)
-    staged = target.parent / f".{target.name}.{os.getpid()}.tmp"
-    cmd = [compiler(), "-shared", "-fPIC", "-std=c99", "-O2", "-Wall", "-o", str(staged), str(C_DIR / "runner.c")]
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise BuildError(f"compiling the stepping loop failed ({' '.join(cmd)}):\n{proc.stderr}")
-    os.replace(staged, target)
-    return target
+    """The importer-side stepping loop (``c/runner.c``) as a shared library, cached (and verified) like the FMU."""
+    h = hashlib.sha256((C_DIR / "runner.c").read_bytes() + Path(__file__).read_bytes()
+                       + f"|{sys.platform}|{platform.machine()}".encode())
+
+    def make(dest: Path) -> None:
+        with tempfile.TemporaryDirectory(prefix="hdrive-build-") as tmp:
+            binary = Path(tmp) / dest.name
+            cmd = [compiler(), "-shared", "-fPIC", "-std=c99", "-O2", "-Wall", "-o", str(binary),
+                   str(C_DIR / "runner.c")]
+            proc = subprocess.run(cmd, capture_output=True, text=True)
+            if proc.returncode != 0:
+                raise BuildError(f"compiling the stepping loop failed ({' '.join(cmd)}):\n{proc.stderr}")
+            shutil.copyfile(binary, dest)
+
+    return cached_file(f"runner-{h.hexdigest()[:16]}", f"hd_runner{_shared_suffix()}", make, "stepping loop")
 
 
 def default_fmu_path(fmi_version: int = 2) -> Path:

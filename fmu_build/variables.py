@@ -121,5 +121,30 @@ UNITS: dict[str, dict[str, int]] = {
     "1": {},
 }
 
+
+
+@dataclass(frozen=True)
+class LogCategory:
+    """One log category of the FMU (the ``<LogCategories>`` of both modelDescriptions and the C glue's table).
+
+    ``default``: enabled by ``loggingOn = true`` at instantiation (FMI 3: "categories for messages that explain
+    execution errors, like fmi3Discard, fmi3Error"); the others only through ``fmiXSetDebugLogging``.
+    """
+
+    name: str
+    description: str
+    default: bool
+
+
+LOG_CATEGORIES: tuple[LogCategory, ...] = (
+    LogCategory("logStatusError", "Why a call returned Error: the variable and its allowed range, the step that "
+                "cannot be computed, a call the current state does not allow, an invalid FMU state", True),
+    LogCategory("logStatusDiscard", "Why a setter returned Discard: a parameter or input value outside its allowed "
+                "range (the value is not taken; the simulation can continue)", True),
+    LogCategory("logSteps", "One line per doStep: its step size, the switching events handled and the model "
+                "evaluations spent of the per-step work budget", False),
+)
+
 MODEL_IDENTIFIER = "HarmonicDrive"
 MODEL_NAME = "HarmonicDrive"
+AUTHOR = "hdrive contributors"

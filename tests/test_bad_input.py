@@ -1,5 +1,8 @@
-"""Bad input: the FMU answers fmi2Error / fmi3Error with a message naming the variable and its range, never
-crashes and never puts NaN in an output; ``ident.Plant`` raises clear Python exceptions."""
+"""Bad input: the FMU refuses a value outside its range with fmi2Discard / fmi3Discard (nothing changes, the
+simulation can continue: the standards' suggestion for a setter's range check) and anything else it cannot do with
+fmi2Error / fmi3Error (then only a reset or a saved FMU state brings it back), always with a message naming the
+variable and its range; it never crashes and never puts NaN in an output; ``ident.Plant`` raises clear Python
+exceptions."""
 from __future__ import annotations
 
 import ctypes
@@ -11,7 +14,7 @@ import pytest
 from fmu_build import variables as V
 from ident import DriveParams, ParameterError, Plant, PlantError
 
-OK, ERROR = 0, 3
+OK, DISCARD, ERROR = 0, 2, 3
 REAL_PARAMS = [v for v in V.PARAMETERS if v.type == "Real"]
 OUT_REALS = [v for v in V.OUTPUTS if v.type == "Real"]
 
@@ -79,7 +82,7 @@ def raw(request) -> RawFMU:
 def test_unphysical_parameter_is_an_error_naming_variable_and_range(raw: RawFMU, name: str, value: float) -> None:
     var = V.BY_NAME[name]
     raw.log.clear()
-    assert raw.set_real([var.vr], [value]) == ERROR
+    assert raw.set_real([var.vr], [value]) == DISCARD
     assert raw.log, "the FMU logged nothing"
     msg = raw.log[-1]
     assert name in msg and "allowed range" in msg and f"{var.lo:g}" in msg and f"{var.hi:g}" in msg, msg
@@ -90,7 +93,7 @@ def test_unphysical_parameter_is_an_error_naming_variable_and_range(raw: RawFMU,
 
 def test_bad_encoder_counts(raw: RawFMU) -> None:
     raw.log.clear()
-    assert raw.set_int([V.BY_NAME["encoder_counts_per_rev"].vr], [0]) == ERROR
+    assert raw.set_int([V.BY_NAME["encoder_counts_per_rev"].vr], [0]) == DISCARD
     assert "encoder_counts_per_rev" in raw.log[-1]
 
 
@@ -98,7 +101,7 @@ def test_bad_encoder_counts(raw: RawFMU) -> None:
 def test_non_finite_torque_is_an_error(raw: RawFMU, torque: float) -> None:
     assert raw.initialize() == OK
     raw.log.clear()
-    assert raw.set_real([V.BY_NAME["motor_torque"].vr], [torque]) == ERROR
+    assert raw.set_real([V.BY_NAME["motor_torque"].vr], [torque]) == DISCARD
     assert "motor_torque" in raw.log[-1]
     assert raw.do_step(0.0, 1e-3) == OK  # the previous (valid) torque is still held
     status, outs = raw.get_reals()
@@ -106,11 +109,13 @@ def test_non_finite_torque_is_an_error(raw: RawFMU, torque: float) -> None:
 
 
 def test_bad_step_size_is_an_error(raw: RawFMU) -> None:
-    assert raw.initialize() == OK
     for h in (-1e-3, math.nan, math.inf):
+        assert raw.reset() == OK and raw.initialize() == OK
         raw.log.clear()
         assert raw.do_step(0.0, h) == ERROR
         assert "step size" in raw.log[-1]
+        assert raw.do_step(0.0, 1e-3) == ERROR  # the error state: only a reset (or a saved state) continues
+        assert "must not be called" in raw.log[-1]
 
 
 def test_parameters_cannot_change_after_initialization(raw: RawFMU) -> None:
@@ -166,7 +171,7 @@ def test_random_parameters_inputs_and_steps_never_crash_or_nan() -> None:
             value, ok = _random_value(rng, var)
             fmu.log.clear()
             status = fmu.set_real([var.vr], [value])
-            assert status == (OK if ok else ERROR), (case, var.name, value, fmu.log)
+            assert status == (OK if ok else DISCARD), (case, var.name, value, fmu.log)
             if not ok:
                 assert var.name in fmu.log[-1]
                 refused += 1
@@ -178,7 +183,7 @@ def test_random_parameters_inputs_and_steps_never_crash_or_nan() -> None:
             torque = float(rng.choice([math.nan, math.inf])) if rng.random() < 0.03 else \
                 float(rng.uniform(-5, 5) * f_m * 10 ** rng.uniform(-1, 1))
             status = fmu.set_real([V.BY_NAME["motor_torque"].vr], [torque])
-            assert status == (OK if math.isfinite(torque) else ERROR)
+            assert status == (OK if math.isfinite(torque) else DISCARD)
             h = float(10 ** rng.uniform(-6, -1))
             status = fmu.do_step(t, h)
             assert status == OK, (case, fmu.log[-1:] )

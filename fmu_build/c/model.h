@@ -26,7 +26,17 @@
 
 #include "model_vars.h" /* generated from fmu_build/variables.py: value references, ranges, start values */
 
-typedef enum { HD_OK = 0, HD_ERROR = 1 } HDStatus;
+/* HD_RANGE: a value outside its allowed range (NaN included) was refused and nothing changed; the FMI glue answers
+ * it with Discard, as both standards suggest for a min/max violation in a setter. HD_ERROR: anything else. */
+typedef enum { HD_OK = 0, HD_ERROR = 1, HD_RANGE = 2 } HDStatus;
+
+/* Phase of an FMU instance in the FMI state machines (kept in the FMU state, hence here): FMI 2 instantiated,
+ * initializationMode, stepComplete, terminated, error; FMI 3 Instantiated, Initialization Mode, Step Mode,
+ * Terminated (HD_PHASE_ERROR is Terminated entered through an error: the same allowed calls). */
+typedef enum {
+    HD_PHASE_INSTANTIATED = 0, HD_PHASE_INITIALIZATION, HD_PHASE_STEP, HD_PHASE_TERMINATED, HD_PHASE_ERROR,
+    HD_PHASE_COUNT
+} HDPhase;
 
 typedef struct {
     /* Parameters (SI). Names equal the FMU variable names. */
@@ -64,7 +74,8 @@ void hd_set_defaults(HDModel *m);
 HDCausality hd_causality(uint32_t vr, HDType type);
 
 /* Accessors by value reference. On failure they write a message naming the variable (and the allowed range)
- * into err and return HD_ERROR; the model is left unchanged. */
+ * into err and return HD_RANGE (a value outside its range) or HD_ERROR (an unknown or not settable variable); the
+ * model is left unchanged. */
 HDStatus hd_get_real(const HDModel *m, uint32_t vr, double *value, char *err, size_t errlen);
 HDStatus hd_get_integer(const HDModel *m, uint32_t vr, int32_t *value, char *err, size_t errlen);
 HDStatus hd_get_boolean(const HDModel *m, uint32_t vr, int *value, char *err, size_t errlen);
@@ -74,21 +85,37 @@ HDStatus hd_set_integer(HDModel *m, uint32_t vr, int32_t value, char *err, size_
 /* Checks every parameter, then sets the state from the *_start parameters at time t0. */
 HDStatus hd_initialize(HDModel *m, double t0, char *err, size_t errlen);
 
-/* A snapshot of an instance (FMU state): the model plus the FMI glue's phase and start time. Serialized as a
- * header (magic, snapshot size, a hash of this build's instantiation token) and the snapshot's bytes: for the same
- * platform and the same FMU build only, which the header lets hd_snapshot_read check. */
+/* A snapshot of an instance (FMU state): the model plus the FMI glue's phase and start time.
+ *
+ * Serialized field by field (no struct padding, every byte written): a header (magic, format, payload size, a hash
+ * of this build's instantiation token) and the fields in the order of the variable table, then the internal state.
+ * For the same platform and the same FMU build only, which the header lets hd_snapshot_read check. A state read
+ * back is validated like parameters before it is accepted (hd_snapshot_check): every parameter and the input in its
+ * range, every number finite, the phase and the stick/slip modes valid enum values, a stuck body at rest. */
 typedef struct {
     HDModel model;
-    int32_t phase;
+    int32_t phase; /* HDPhase */
     double start_time;
 } HDSnapshot;
 
 size_t hd_snapshot_bytes(void);
 void hd_snapshot_write(const HDSnapshot *s, unsigned char *bytes);
 HDStatus hd_snapshot_read(const unsigned char *bytes, size_t size, HDSnapshot *s, char *err, size_t errlen);
+HDStatus hd_snapshot_check(const HDSnapshot *s, char *err, size_t errlen);
+
+/* Work budget of one doStep, in evaluations of the model's equations (one closed-form state evaluation, or one
+ * right-hand side of the general propagator: an RK4 substep is four). It bounds the CPU time of every doStep, for any
+ * step size and any state that passed the checks; see model.c, "work budget". */
+#define HD_WORK_BUDGET 2000000LL
+
+/* What one doStep did (for the logSteps log category). */
+typedef struct {
+    int64_t events; /* switching events handled */
+    int64_t work;   /* evaluations of the model's equations */
+} HDStepStats;
 
 /* Advances the plant by h seconds with the current motor_torque held. Exact stick-slip inside.
- * On error the model is left as it was before the call. */
-HDStatus hd_do_step(HDModel *m, double h, char *err, size_t errlen);
+ * On error the model is left as it was before the call. stats may be NULL. */
+HDStatus hd_do_step(HDModel *m, double h, HDStepStats *stats, char *err, size_t errlen);
 
 #endif

@@ -122,20 +122,30 @@ class Plant:
         from fmpy.fmi3 import FMU3Slave
 
         path = Path(fmu_path) if fmu_path is not None else default_fmu_path(fmi_version)
-        self.model_description = read_model_description(str(path))
-        self.fmi_version = int(self.model_description.fmiVersion[0])
+        self._fmu = None
+        try:  # a damaged FMU file: a named error, not a traceback from deep inside zipfile or ctypes
+            self.model_description = read_model_description(str(path))
+            self.fmi_version = int(self.model_description.fmiVersion[0])
+        except Exception as exc:
+            raise PlantError(f"cannot read the FMU {path}: {exc}") from None
         self._unzipdir = tempfile.mkdtemp(prefix="hdrive-fmu-")
         _UNPACKED.add(self._unzipdir)
-        extract(str(path), unzipdir=self._unzipdir)
         kwargs = dict(guid=self.model_description.guid, unzipDirectory=self._unzipdir,
                       modelIdentifier=self.model_description.coSimulation.modelIdentifier, instanceName="plant")
         self._messages: list[str] = []
-        if self.fmi_version == 2:
-            self._fmu = FMU2Slave(**kwargs)
-            self._fmu.instantiate(callbacks=self._fmi2_callbacks())
-        else:
-            self._fmu = FMU3Slave(**kwargs)
-            self._fmu.instantiate(logMessage=self._fmi3_log)
+        try:
+            extract(str(path), unzipdir=self._unzipdir)
+            # loggingOn: the FMU then reports why it refuses a call (FMI 3 logs nothing at all without it).
+            if self.fmi_version == 2:
+                self._fmu = FMU2Slave(**kwargs)
+                self._fmu.instantiate(callbacks=self._fmi2_callbacks(), loggingOn=True)
+            else:
+                self._fmu = FMU3Slave(**kwargs)
+                self._fmu.instantiate(loggingOn=True, logMessage=self._fmi3_log)
+        except Exception as exc:
+            shutil.rmtree(self._unzipdir, ignore_errors=True)
+            self._fmu = None
+            raise PlantError(f"cannot load the FMU {path}: {exc}") from None
         self._bind_fast_path()
         self._params = params if params is not None else DriveParams()
         self._initial = {k: 0.0 for k in _INITIAL_STATE}
@@ -299,6 +309,10 @@ class Plant:
     # -- stepping --------------------------------------------------------------------------------------------
     def step(self, torque: float, dt: float) -> Sample:
         """Hold ``torque`` [N m] for ``dt`` [s] (exact stick-slip inside) and return the outputs at the end."""
+        if not (np.isfinite(dt) and dt >= 0):
+            # Checked here: the FMU would refuse it with fmiError, after which the standard allows only a reset.
+            raise PlantError(f"doStep(t = {self.time} s, dt = {dt!r} s) refused: the communication step size must "
+                             "be finite and >= 0")
         self._in_val[0] = torque
         if self._set_input() > 1:
             self._raise(f"setting motor_torque = {torque!r} N.m")

@@ -12,6 +12,7 @@ scratch space) in one folder that is removed with the cluster, also when the bat
 """
 from __future__ import annotations
 
+import atexit
 import os
 import shutil
 import sys
@@ -26,6 +27,15 @@ R = TypeVar("R")
 
 CONNECT_TIMEOUT_S = 10.0   # how long a scheduler may take to answer before it counts as unreachable
 LIVENESS_POLL_S = 5.0      # how often a batch waiting for results checks that the cluster still has workers
+
+
+_SCRATCH: set[str] = set()   # local workers' temporary folders: removed after the batch and once more at exit
+
+
+@atexit.register   # registered before Dask is imported, so it runs after Dask's own exit handlers
+def _remove_scratch() -> None:
+    for folder in list(_SCRATCH):
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 class BatchError(RuntimeError):
@@ -78,6 +88,7 @@ def _run_local(fn: Callable[[T], R], items: list[T], n: int, progress: bool, des
     from dask.distributed import Client, LocalCluster
 
     scratch = tempfile.mkdtemp(prefix="hdrive-workers-")
+    _SCRATCH.add(scratch)   # an interrupted cluster may still write into it while it shuts down
     cluster = client = None
     try:
         with dask.config.set({"temporary-directory": scratch}):
