@@ -315,8 +315,9 @@ def _add_resolution(sub: Any) -> None:
                    help="impulse: 1 ms torque pulses at the threshold amplitude (paper section IV); linear: PD "
                         "set-point steps on the motor encoder (paper section III)")
     p.add_argument("--fl-star", type=float, help="load friction level f_l* = f_l/f_m (default: the drive's)")
-    p.add_argument("--pulses", type=int, default=1000, help="pulses per impulse experiment N (default 1000)")
-    p.add_argument("--steps", type=int, default=1000, help="measured PD steps (default 1000)")
+    p.add_argument("--pulses", type=int, default=1000,
+                   help="pulses per impulse experiment N (impulse controller; default 1000)")
+    p.add_argument("--steps", type=int, default=1000, help="measured PD steps (linear controller; default 1000)")
     p.add_argument("--eps1-um", type=float, default=0.1, help="motion threshold eps1 [µm] (default 0.1)")
     p.add_argument("--increments", action="store_true",
                    help="also put every increment (increments_m) into the JSON (default: summary figures only)")
