@@ -6,12 +6,14 @@ the protocol is the MAX increment, which can therefore be pulse 1 of that transi
 steady-state max.
 
 How the end is found (from the data only, no constant tuned to a drive): the last quarter of the experiment is
-taken as the reference of the steady state; a pulse is settled when its increment lies within the reference's
-range [min, max] widened on both sides by ``SETTLING_BAND`` times the reference's median (the 2 % settling band of
-control engineering). The transient ends after the last pulse outside that band. The steady state is trusted only
-when the settled tail covers at least the second half of the experiment (so the reference quarter lies well inside
-it); otherwise the sequence has not settled within the experiment and the steady-state figures are None ("I can't
-tell").
+taken as the reference of the steady state, with its range [min, max]. The transient's size is the largest
+distance of any increment outside that range. If it is not larger than the range's own width, no transient stands
+out from the steady scatter. Otherwise a pulse is settled when its increment lies within the range widened on both
+sides by ``SETTLING_BAND`` (2 %) of the transient's size: the 2 % settling criterion of control engineering,
+applied to the size of the transient itself. The transient ends after the last pulse outside that band. The steady
+state is trusted only when the settled tail covers at least the second half of the experiment (so the reference
+quarter lies well inside it); otherwise the sequence has not settled within the experiment and the steady-state
+figures are None ("I can't tell").
 """
 from __future__ import annotations
 
@@ -20,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-SETTLING_BAND = 0.02   # fraction of the reference median added on both sides of the reference range
+SETTLING_BAND = 0.02   # fraction of the transient's size added on both sides of the reference range
 MIN_PULSES = 8         # fewer pulses leave no quarter to serve as a reference
 
 
@@ -63,10 +65,12 @@ def start_up_transient(increments_m: np.ndarray, band: float = SETTLING_BAND) ->
     if n < MIN_PULSES:
         return Transient(n, 0, None, max_pulse, max_m, None, None, None, None)
     ref = x[(3 * n) // 4:]
-    tol = band * abs(float(np.median(ref)))
-    low, high = float(ref.min()) - tol, float(ref.max()) + tol
+    lo, hi = float(ref.min()), float(ref.max())
+    size = float(np.max(np.maximum(lo - x, x - hi)))
+    tol = band * size
+    low, high = lo - tol, hi + tol
     outside = np.flatnonzero((x < low) | (x > high))
-    end = int(outside[-1]) + 1 if outside.size else 0
+    end = int(outside[-1]) + 1 if outside.size and size > hi - lo else 0
     if end > n // 2:
         return Transient(n, end, False, max_pulse, max_m, None, None, None, (low, high))
     tail = x[end:]

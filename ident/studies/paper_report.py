@@ -163,15 +163,18 @@ A_op = {imp.operating_amplitude:.4f}. Resolution (max increment of a fresh {imp.
 
 def _transient_md(t: Transient) -> str:
     how = (f"How the end is found: the last quarter of the experiment (pulses {(3 * t.n_pulses) // 4 + 1}-"
-           f"{t.n_pulses}) is the reference of the steady state; a pulse is settled when its increment lies within "
-           f"the reference's range widened by {SETTLING_BAND:.0%} of the reference's median on both sides (the "
-           f"{SETTLING_BAND:.0%} settling band of control engineering)")
+           f"{t.n_pulses}) is the reference of the steady state; the transient's size is the largest distance of an "
+           "increment outside the reference's range, and a pulse is settled when its increment lies within that range "
+           f"widened by {SETTLING_BAND:.0%} of the transient's size on both sides (the {SETTLING_BAND:.0%} settling "
+           "criterion of control engineering)")
     if t.settled is None:
         return f"**Start-up transient.** {_transient_sentence(t)}"
     band = f"{t.band_m[0] * 1e6:.4f} - {t.band_m[1] * 1e6:.4f} µm"
     if not t.settled:
         return (f"**Start-up transient.** {_transient_sentence(t)} {how} ({band}); a steady state is trusted only "
                 "when the settled pulses cover at least the second half of the experiment.")
+    if t.end_pulse == 0:
+        return (f"**Start-up transient.** None stands out: every increment lies within the steady range. {how}.")
     where = (f"The max increment is pulse {t.max_pulse}, inside the transient: the experiment starts from rest with "
              "zero spring deflection, and the first pulses move the arm differently until the load's stick-slip "
              f"settles. After the transient the max is **{um(t.steady_max_m)}** (median {um(t.steady_median_m)}, "
