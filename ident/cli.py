@@ -1,4 +1,12 @@
-"""``hdrive`` command line: a thin layer over the Python API (parse, call, print JSON or write files)."""
+"""``hdrive`` command line: a thin layer over the Python API (parse, call, print JSON or write files).
+
+Conventions every command follows (the README says the same to users):
+
+- ``--json`` prints one JSON document on stdout whose keys follow ``ident.common.units``: SI, the unit in the key's
+  suffix (``resolution_m``, ``elapsed_s``); ``main`` applies ``si_keys`` to every command's result.
+- Progress goes to stderr for anything that can take more than a few seconds, with or without ``--json``.
+- Help texts are plain text (``DESCRIPTION`` below, not this docstring, is what ``--help`` shows).
+"""
 from __future__ import annotations
 
 import argparse
@@ -11,6 +19,20 @@ from .protocols.controllers import SettleError
 from .protocols.resolution import NoConsistentStep, ThresholdNotFound
 
 
+DESCRIPTION = ("hdrive: resolution of a harmonic-drive joint with exact stick-slip friction, simulated by a real "
+               "FMU. Every command takes --json (one JSON document on stdout, SI units named in the keys' suffixes); "
+               "progress goes to stderr.")
+
+
+def _progress(args: argparse.Namespace) -> bool:
+    """Progress bars go to stderr, so they are shown with --json too (stdout stays one JSON document)."""
+    return True
+
+
+def _say(args: argparse.Namespace, message: str) -> None:
+    print(f"hdrive {args.command}: {message}", file=sys.stderr, flush=True)
+
+
 def _params_from(args: argparse.Namespace) -> DriveParams:
     values = parse_assignments(getattr(args, "param", None))
     if getattr(args, "fl_star", None) is not None:
@@ -21,6 +43,7 @@ def _params_from(args: argparse.Namespace) -> DriveParams:
 def cmd_build_fmu(args: argparse.Namespace) -> dict:
     from fmu_build import build_fmu
 
+    _say(args, f"building HarmonicDrive.fmu (FMI {args.fmi}; compiled with the C compiler unless cached) ...")
     path = build_fmu(fmi_version=args.fmi, out_dir=args.out)
     if not args.json:
         print(path)
@@ -31,46 +54,60 @@ def cmd_demo(args: argparse.Namespace) -> dict:
     from .studies.demo import write_demo
 
     summary = write_demo(args.out, params=_params_from(args), amplitude_star=args.amplitude, pulses=args.pulses,
-                         progress=not args.json)
+                         progress=_progress(args))
     if not args.json:
-        print(f"wrote {summary['csv']} and {summary['png']}")
-        print("arm increments [um]: " + ", ".join(f"{x:.4f}" for x in summary["increments_um"]))
+        print(f"wrote {summary['csv']} (a log: read it with ident.read_log), {summary['meta']} and {summary['png']}")
+        print("arm increments [µm]: " + ", ".join(f"{x * 1e6:.4f}" for x in summary["increments_m"]))
     return summary
 
 
-def _um(x) -> float | list[float]:
-    import numpy as np
+def _resolution_result(args: argparse.Namespace, params: DriveParams) -> tuple[Any, dict]:
+    """Run the chosen protocol; (result, the JSON summary without increments)."""
+    from .protocols.resolution import impulse_resolution, linear_resolution
 
-    arr = np.asarray(x, dtype=float) * 1e6
-    return arr.tolist() if arr.ndim else float(arr)
+    if args.controller == "impulse":
+        r = impulse_resolution(params, n_pulses=args.pulses, eps1_m=args.eps1_um * 1e-6, progress=_progress(args))
+        return r, {"controller": "impulse", "threshold_amplitude": r.threshold_amplitude,
+                   "operating_amplitude": r.operating_amplitude, "n_pulses": r.n_pulses}
+    r = linear_resolution(params, n_steps=args.steps, eps1_m=args.eps1_um * 1e-6, progress=_progress(args))
+    return r, {"controller": "linear", "counts": r.counts, "n_steps": r.n_steps}
 
 
 def cmd_resolution(args: argparse.Namespace) -> dict:
-    from .protocols.resolution import impulse_resolution, linear_resolution
+    from pathlib import Path
+
+    from .protocols.transient import start_up_transient
 
     params = _params_from(args)
-    if args.controller == "impulse":
-        r = impulse_resolution(params, n_pulses=args.pulses, eps1_m=args.eps1_um * 1e-6)
-        out = {"controller": "impulse", "threshold_amplitude": r.threshold_amplitude,
-               "operating_amplitude": r.operating_amplitude, "n_pulses": r.n_pulses}
-    else:
-        r = linear_resolution(params, n_steps=args.steps, eps1_m=args.eps1_um * 1e-6)
-        out = {"controller": "linear", "counts": r.counts, "n_steps": r.n_steps}
-    out.update(resolution_um=_um(r.resolution_m), median_um=_um(r.median_m), min_um=_um(r.min_m),
-               std_um=_um(r.std_m), f_l_star=params.f_l_star, elapsed_s=r.elapsed_s,
-               increments_um=_um(r.increments_m), params=params.to_dict())
+    r, out = _resolution_result(args, params)
+    tr = start_up_transient(r.increments_m)
+    out.update(resolution_m=r.resolution_m, median_m=r.median_m, min_m=r.min_m, std_m=r.std_m,
+               max_pulse=tr.max_pulse, transient_end_pulse=tr.end_pulse if tr.settled else None,
+               steady_max_m=tr.steady_max_m, eps1_m=r.eps1_m, f_l_star=params.f_l_star, elapsed_s=r.elapsed_s,
+               params=params.to_dict())
+    if args.increments:
+        out["increments_m"] = [float(x) for x in r.increments_m]
     if args.out:
-        from pathlib import Path
-
         Path(args.out).mkdir(parents=True, exist_ok=True)
-        r.to_frame().to_csv(Path(args.out) / f"{args.controller}_increments.csv", index=False)
-        out["png"] = str(r.plot(Path(args.out) / f"{args.controller}.png"))
+        csv = Path(args.out) / f"{args.controller}_increments.csv"
+        r.to_frame().to_csv(csv, index=False)
+        out.update(csv=str(csv), png=str(r.plot(Path(args.out) / f"{args.controller}.png")))
     if not args.json:
-        extra = (f"A_th = {out['threshold_amplitude']:.4f}, A_op = {out['operating_amplitude']:.4f}"
-                 if args.controller == "impulse" else f"consistent at {out['counts']} counts")
-        print(f"{args.controller} resolution (max increment): {out['resolution_um']:.4f} um "
-              f"(median {out['median_um']:.4f}, min {out['min_um']:.4f}, std {out['std_um']:.4f} um); {extra}")
+        _print_resolution(out)
     return out
+
+
+def _print_resolution(out: dict) -> None:
+    um = {k: out[k] * 1e6 for k in ("resolution_m", "median_m", "min_m", "std_m")}
+    extra = (f"A_th = {out['threshold_amplitude']:.4f}, A_op = {out['operating_amplitude']:.4f}"
+             if out["controller"] == "impulse" else f"consistent at {out['counts']} counts")
+    print(f"{out['controller']} resolution (max increment): {um['resolution_m']:.4f} µm at pulse {out['max_pulse']} "
+          f"(median {um['median_m']:.4f}, min {um['min_m']:.4f}, std {um['std_m']:.4f} µm); {extra}")
+    if out["transient_end_pulse"] is None:
+        print("start-up transient: not settled within the experiment (no steady-state max)")
+    else:
+        print(f"start-up transient: pulses 1-{out['transient_end_pulse']}; steady-state max after it "
+              f"{out['steady_max_m'] * 1e6:.4f} µm")
 
 
 def cmd_sweep(args: argparse.Namespace) -> dict:
@@ -79,7 +116,7 @@ def cmd_sweep(args: argparse.Namespace) -> dict:
     from .protocols.sweep import friction_sweep
 
     sweep = friction_sweep(_params_from(args), args.levels, args.pulses, scheduler=args.scheduler,
-                           workers=args.workers, progress=not args.json)
+                           workers=args.workers, progress=_progress(args))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     df = sweep.to_frame()
@@ -90,7 +127,7 @@ def cmd_sweep(args: argparse.Namespace) -> dict:
     if not args.json:
         print(df.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
         t = result["trend"]
-        print(f"resolution vs f_l*: slope {t['slope_um']:.4f} um, R^2 {t['r2']:.3f}; wrote {out}")
+        print(f"resolution vs f_l*: slope {t['slope_um']:.4f} µm per unit f_l*, R² {t['r2']:.3f}; wrote {out}")
     return result
 
 
@@ -99,7 +136,7 @@ def cmd_study(args: argparse.Namespace) -> dict:
 
     study, report = write_study(args.out, _params_from(args), n_pulses=args.pulses, n_steps=args.steps,
                                 levels=args.levels, scheduler=args.scheduler, workers=args.workers,
-                                progress=not args.json)
+                                progress=_progress(args))
     if not args.json:
         print(study.comparison().to_string(index=False))
         print(f"wrote {report}")
@@ -215,7 +252,7 @@ def cmd_paper_effects(args: argparse.Namespace) -> dict:
 def cmd_emps_report(args: argparse.Namespace) -> dict:
     from .studies.emps import emps_report
 
-    report = emps_report(args.out, args.data)
+    report = emps_report(args.out, args.data, progress=_progress(args))
     if not args.json:
         print(f"wrote {report}")
     return {"report": str(report)}
@@ -224,48 +261,67 @@ def cmd_emps_report(args: argparse.Namespace) -> dict:
 def _add_log_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", help="log file: CSV or Parquet with a JSON sidecar (physics.md section 4), or EMPS .mat")
     p.add_argument("--meta", help="JSON sidecar (default: LOG.json or meta.json beside it)")
-    p.add_argument("--model", choices=("two-inertia", "rigid"), default="two-inertia")
-    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--model", choices=("two-inertia", "rigid"), default="two-inertia",
+                   help="two-inertia: motor, spring and load (needs load_pos_rad); rigid: one body with viscous and "
+                        "Coulomb friction (motor-only logs such as EMPS) (default two-inertia)")
+    p.add_argument("--json", action="store_true", help=_JSON_HELP)
 
 
 def _add_drive_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--param", action="append", metavar="NAME=VALUE",
-                   help="drive parameter in SI (e.g. K_s=2e4) or K_star / J_l_star / f_l_star; repeatable")
-    p.add_argument("--json", action="store_true", help="print JSON")
+                   help="drive parameter in SI (e.g. K_s=2e4) or K_star / J_l_star / f_l_star; repeatable "
+                        "(default: the nominal drive)")
+    p.add_argument("--json", action="store_true", help=_JSON_HELP)
+
+
+_JSON_HELP = "print one JSON document on stdout (SI units, named in the keys' suffixes); progress stays on stderr"
+
+# What each command runs in parallel (the --scheduler / --workers help names it).
+_BATCH_TASKS = {"sweep": "the friction levels", "study": "the friction levels of the sweep",
+                "predict": "the resolution runs of the parameter draws (one task per draw)",
+                "paper-effects": "the effect cases x friction levels (one task each)"}
 
 
 def _add_batch_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the levels on this dask.distributed cluster")
-    p.add_argument("--workers", type=int, help="local worker processes (default: cores; 0 = serial, no Dask)")
+    what = _BATCH_TASKS.get(p.prog.split()[-1], "the batch's tasks")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help=f"run {what} on this dask.distributed cluster "
+                   "(default: local worker processes)")
+    p.add_argument("--workers", type=int, help=f"local worker processes for {what} (default: one per core; "
+                   "0 = serial in this process, no Dask)")
 
 
 def _add_build_fmu(sub: Any) -> None:
     p = sub.add_parser("build-fmu", help="build HarmonicDrive.fmu and print its path")
     p.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version (default 2)")
     p.add_argument("--out", required=True, help="directory to write HarmonicDrive.fmu into")
-    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--json", action="store_true", help=_JSON_HELP)
     p.set_defaults(func=cmd_build_fmu)
 
 
 def _add_demo(sub: Any) -> None:
-    p = sub.add_parser("demo", help="nominal drive's response to a train of 1 ms torque pulses (CSV + PNG)")
-    p.add_argument("--out", required=True, help="output directory")
+    p = sub.add_parser("demo", help="a drive's response to a train of 1 ms torque pulses: a log (CSV + JSON "
+                                    "sidecar, readable by read_log) and a PNG")
+    p.add_argument("--out", required=True, help="output directory (pulse_train.csv, pulse_train.json, "
+                                                "pulse_train.png, summary.json)")
     p.add_argument("--pulses", type=int, default=10, help="number of pulses (default 10)")
-    p.add_argument("--amplitude", type=float, default=3.0, help="pulse amplitude tau* = T/f_m (default 3)")
-    p.add_argument("--param", action="append", metavar="NAME=VALUE",
-                   help="drive parameter in SI (e.g. K_s=2e4) or K_star / J_l_star / f_l_star; repeatable")
-    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--amplitude", type=float, default=3.0, help="pulse amplitude tau* = T_m/f_m (default 3)")
+    _add_drive_options(p)
     p.set_defaults(func=cmd_demo)
 
 
 def _add_resolution(sub: Any) -> None:
     p = sub.add_parser("resolution", help="impulse or linear resolution of one drive (paper sections III-IV)")
-    p.add_argument("--controller", choices=("impulse", "linear"), required=True)
+    p.add_argument("--controller", choices=("impulse", "linear"), required=True,
+                   help="impulse: 1 ms torque pulses at the threshold amplitude (paper section IV); linear: PD "
+                        "set-point steps on the motor encoder (paper section III)")
     p.add_argument("--fl-star", type=float, help="load friction level f_l* = f_l/f_m (default: the drive's)")
-    p.add_argument("--pulses", type=int, default=1000, help="pulses per impulse experiment N (default 1000)")
-    p.add_argument("--steps", type=int, default=1000, help="measured PD steps (default 1000)")
-    p.add_argument("--eps1-um", type=float, default=0.1, help="motion threshold eps1 [um] (default 0.1)")
-    p.add_argument("--out", help="also write the increments (CSV) and a histogram (PNG) here")
+    p.add_argument("--pulses", type=int, default=1000,
+                   help="pulses per impulse experiment N (impulse controller; default 1000)")
+    p.add_argument("--steps", type=int, default=1000, help="measured PD steps (linear controller; default 1000)")
+    p.add_argument("--eps1-um", type=float, default=0.1, help="motion threshold eps1 [µm] (default 0.1)")
+    p.add_argument("--increments", action="store_true",
+                   help="also put every increment (increments_m) into the JSON (default: summary figures only)")
+    p.add_argument("--out", help="also write every increment (CSV) and a histogram and sequence (PNG) here")
     _add_drive_options(p)
     p.set_defaults(func=cmd_resolution)
 
@@ -274,7 +330,7 @@ def _add_sweep(sub: Any) -> None:
     p = sub.add_parser("sweep", help="impulse resolution at 25 load-friction levels (paper section V)")
     p.add_argument("--levels", type=int, default=25, help="number of levels from f_l* = 0.01 to 1 (default 25)")
     p.add_argument("--pulses", type=int, default=1000, help="pulses per experiment N (default 1000)")
-    p.add_argument("--out", required=True, help="output directory (CSV + PNG)")
+    p.add_argument("--out", required=True, help="output directory (sweep.csv and the PNG plots)")
     _add_batch_options(p)
     _add_drive_options(p)
     p.set_defaults(func=cmd_sweep)
@@ -339,12 +395,14 @@ def _add_paper_effects(sub: Any) -> None:
 def _add_emps_report(sub: Any) -> None:
     p = sub.add_parser("emps-report", help="the EMPS benchmark (real drive): rigid IDIM-LS side by side with the paper")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--data", help="folder with DATA_EMPS.mat and DATA_EMPS_PULSES.mat (default: ../shared/data/emps)")
-    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--data", help="folder with DATA_EMPS.mat and DATA_EMPS_PULSES.mat (default: "
+                                  "$HDRIVE_SHARED/data/emps, else ../shared/data/emps beside the repository)")
+    p.add_argument("--json", action="store_true", help=_JSON_HELP)
     p.set_defaults(func=cmd_emps_report)
 
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="hdrive", description=__doc__)
+    parser = argparse.ArgumentParser(prog="hdrive", description=DESCRIPTION)
     sub = parser.add_subparsers(dest="command", required=True)
     for add in (_add_build_fmu, _add_demo, _add_resolution, _add_sweep, _add_study, _add_identify, _add_predict,
                 _add_diagnose, _add_paper_effects, _add_emps_report):
@@ -435,7 +493,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         signal.signal(signal.SIGTERM, previous)
     if code == 0 and args.json:
-        print(json.dumps(result, indent=2))
+        from .common.units import plain_json, si_keys
+
+        print(json.dumps(plain_json(si_keys(result)), indent=2))
     return code
 
 

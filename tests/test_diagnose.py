@@ -123,7 +123,7 @@ def test_cli_json_and_report(tmp_path):
     assert {"steps", "effects", "unexplained", "fmu"} <= set(data)
     step = data["steps"][0]
     assert step["added"] is None and {"nrmse_load", "nrmse_motor", "relative_error_pct", "score"} <= set(step)
-    assert step["nrmse_load"] < 1e-3 and step["predicted_resolution_um"] > 0
+    assert step["nrmse_load"] < 1e-3 and step["predicted_resolution_m"] > 0   # the CLI's JSON is SI
     assert (out / "diagnosis.md").is_file() and (out / "residual_vs_time.png").is_file()
     # the exported FMU carries the fitted values as start values and simulates with them
     from fmpy import read_model_description

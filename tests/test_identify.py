@@ -82,8 +82,8 @@ def test_cli_identify_and_predict_json(tmp_path: Path) -> None:
                            "--steps", "30", "--workers", "0", "--json"], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     d = json.loads(proc.stdout)
-    assert set(d["impulse_resolution_um"]) == {"value", "ci95"} and d["impulse_resolution_um"]["value"] > 0
-    assert set(d["linear_resolution_um"]) == {"value", "ci95"}
+    assert set(d["impulse_resolution_m"]) == {"value", "ci95"} and d["impulse_resolution_m"]["value"] > 0
+    assert set(d["linear_resolution_m"]) == {"value", "ci95"}   # the CLI's JSON is SI (ident.common.units)
 
 
 def test_log_without_load_sensor_needs_the_rigid_model() -> None:

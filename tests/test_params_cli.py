@@ -51,11 +51,12 @@ def test_cli_demo_writes_csv_png_and_json(tmp_path: Path) -> None:
                           capture_output=True, text=True, check=True)
     summary = json.loads(proc.stdout)
     df = pd.read_csv(out / "pulse_train.csv")
-    assert {"time_s", "q_m_rad", "q_l_rad", "arm_position_m", "motor_torque_Nm", "encoder_count"} <= set(df.columns)
-    assert (out / "pulse_train.png").stat().st_size > 10_000
-    assert len(summary["increments_um"]) == 3 and all(x > 0 for x in summary["increments_um"])
+    assert list(df.columns[:4]) == ["time_s", "motor_torque_Nm", "motor_pos_rad", "load_pos_rad"]
+    assert {"arm_position_m", "encoder_count", "v_m_rad_s", "motor_stuck"} <= set(df.columns)
+    assert (out / "pulse_train.png").stat().st_size > 10_000 and (out / "pulse_train.json").is_file()
+    assert len(summary["increments_m"]) == 3 and all(x > 0 for x in summary["increments_m"])
     # increments are arm motion between rests, so they add up to the final arm position
-    assert sum(summary["increments_um"]) == pytest.approx(df["arm_position_m"].iloc[-1] * 1e6, rel=1e-9)
+    assert sum(summary["increments_m"]) == pytest.approx(df["arm_position_m"].iloc[-1], rel=1e-9)
 
 
 def test_cli_rejects_bad_parameter(capsys) -> None:

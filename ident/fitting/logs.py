@@ -5,6 +5,11 @@ motor_pos_rad, load_pos_rad`` (SI; ``load_pos_rad`` may be absent), plus a JSON 
 (same stem ``.json``, or ``meta.json`` beside it): ``r, J_m_kgm2, f_m_Nm, arm_length_m, encoder_counts_per_rev,
 sample_rate_hz``. Parquet files with the same columns are read too.
 
+Torque time stamps (one convention everywhere: ``identify``, ``diagnose``, ``synthetic_log``, ``hdrive demo``):
+``motor_torque_Nm[k]`` is the torque held over [time_s[k], time_s[k+1]) (zero-order hold, stamped at the start of
+the step it acts over), and the positions of row k are measured at time_s[k], before that torque acts. A log that
+stamps each torque at the end of its step must be shifted by one row before it is read.
+
 ``read_log`` checks everything it reads and raises ``LogError`` naming the file, the column and the 1-based data
 row (row 1 is the first line after the header). It never drops or repairs a row. Optional sidecar keys:
 ``units`` (column -> unit; only the column's SI unit is accepted), and ``kind`` / ``meta_extra`` as written by
@@ -60,7 +65,8 @@ class LogMeta:
 
 @dataclass
 class DriveLog:
-    """One log, in memory. Arrays share one length; time is strictly increasing and regular.
+    """One log, in memory. Arrays share one length; time is strictly increasing and regular;
+    ``motor_torque_Nm[k]`` acts over [time_s[k], time_s[k+1]) (the module docstring's convention).
 
     ``kind`` is ``"rotary"`` (angles in rad, torques in N m) or ``"linear"`` (a linear axis such as the EMPS
     benchmark: positions in m, forces in N, stored in the same fields). ``extra`` holds further signals a loader
@@ -358,7 +364,8 @@ def write_log(log: DriveLog, path: str | Path) -> tuple[Path, Path]:
 
     The log is checked first with ``read_log``'s rules, so whatever is written reads back (exactly: CSV numbers
     are written with 17 significant digits). Each file is written to a temporary file and renamed into place.
-    Columns from ``log.extra`` are written too (``read_log`` ignores them).
+    Columns from ``log.extra`` are written too (``read_log`` ignores them). Rows are written as they are, so the
+    torque convention of the module docstring carries over unchanged.
     """
     path = Path(path)
     sidecar = path.with_suffix(".json")

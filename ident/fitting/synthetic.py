@@ -107,7 +107,7 @@ def diagnosis_excitation(params: DriveParams, duration_s: float = 10.0, rate_hz:
 # Logs with one (or two) effects of the library hidden at a realistic magnitude on the nominal drive, for testing
 # the discrepancy workflow: name -> (hidden FMU parameters, the parameter holding the effect's magnitude, the
 # effects a diagnosis must name). Why realistic: b_m 1e-4 N m s/rad is 5 % of f_m at 5 rad/s; b_l 1 N m s/rad is
-# 2 % damping of the load's ringing; Stribeck static/Coulomb 1.5 with v_s = 1e-4 rad/s (a few um/s at the teeth);
+# 2 % damping of the load's ringing; Stribeck static/Coulomb 1.5 with v_s = 1e-4 rad/s (a few µm/s at the teeth);
 # asymmetry 15 %; hardening 3e6 /rad^2 stiffens the spring ~10 % at the 1e-4 rad a pulse winds; hysteresis torque
 # equal to the load friction; kinematic error 1e-5 rad (2 arcsec) at twice the wave-generator frequency.
 HIDDEN_EFFECT_CASES: dict[str, tuple[dict[str, float], str | None, list[str]]] = {

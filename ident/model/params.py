@@ -100,7 +100,7 @@ class DriveParams:
 
     @property
     def count_at_arm_m(self) -> float:
-        """One motor encoder count seen at the arm tip [m] (1.50 um on the nominal drive)."""
+        """One motor encoder count seen at the arm tip [m] (1.50 µm on the nominal drive)."""
         return self.count_rad * self.r * self.arm_length
 
     @classmethod

@@ -12,11 +12,12 @@ All lengths are metres at the arm tip; amplitudes are non-dimensional (tau* = T_
 from __future__ import annotations
 
 import math
+import sys
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import pandas as pd
@@ -66,6 +67,13 @@ def require_rest(params: DriveParams) -> None:
             scaled = f" (f_l* = {params.f_l / params.f_m:g})" if star and params.f_m > 0 else ""
             raise ValueError(f"{name} = {level:g} N.m{scaled}: a body without friction never comes to rest, so the "
                              "resolution protocols (increments between rests) are undefined; use a friction level > 0")
+
+
+def _bar(progress: bool, desc: str, unit: str) -> Any:
+    """A progress bar on stderr (a disabled one when ``progress`` is False)."""
+    from tqdm import tqdm
+
+    return tqdm(desc=desc, unit=f" {unit}", disable=not progress, file=sys.stderr)
 
 
 def _fresh(plant: Plant) -> None:
@@ -192,19 +200,21 @@ class ImpulseResolution(IncrementStats):
     def plot(self, path: str | Path) -> Path:
         """Histogram and increment-vs-pulse-number sequence, PNG."""
         title = (f"impulse control, f_l* = {self.params.f_l_star:.4g}: A_th = {self.threshold_amplitude:.4f}, "
-                 f"A_op = {self.operating_amplitude:.4f}, resolution (max) = {self.resolution_m * 1e6:.4g} um")
+                 f"A_op = {self.operating_amplitude:.4f}, resolution (max) = {self.resolution_m * 1e6:.4g} µm")
         return plot_increments(self.increments_m, path, title, "pulse number")
 
 
 def find_threshold(plant: Plant, n_pulses: int = 1000, eps1_m: float = 0.1e-6, tol_star: float = 1e-4,
                    width_s: float = 1e-3, coarse_step_star: float = 0.05, max_amplitude_star: float = 20.0,
-                   verify_below: int = 1) -> tuple[float, list[tuple[float, bool, int]]]:
+                   verify_below: int = 1, on_test: Callable[[float, bool, int], None] | None = None
+                   ) -> tuple[float, list[tuple[float, bool, int]]]:
     """First amplitude of the fine ramp A_i = i tol_star whose N-pulse median increment exceeds eps1.
 
     A coarse ramp (every ``coarse_step_star``, from 0) brackets the first pass, bisection on the fine grid narrows
     it to (fail at A - tol, pass at A). Then the ``verify_below`` fine amplitudes just below A are checked to fail
     (the one at A - tol is already known); if one passes (non-monotonic median), the search continues below it.
-    Returns (A_th, list of median tests (amplitude, passed, pulses run)).
+    Returns (A_th, list of median tests (amplitude, passed, pulses run)); ``on_test`` is called after each test
+    with the same three values (progress reporting).
     """
     n_pulses = whole("n_pulses", n_pulses, 1)
     eps1_m = number("eps1_m", eps1_m, positive=True)
@@ -224,6 +234,8 @@ def find_threshold(plant: Plant, n_pulses: int = 1000, eps1_m: float = 0.1e-6, t
             ok, used = _median_exceeds(plant, a, n_pulses, eps1_m, width_s)
             cache[i] = ok
             tests.append((a, ok, used))
+            if on_test is not None:
+                on_test(a, ok, used)
         return cache[i]
 
     lo, i = -1, 0  # lo: largest index known to fail (-1: none yet)
@@ -252,19 +264,26 @@ def find_threshold(plant: Plant, n_pulses: int = 1000, eps1_m: float = 0.1e-6, t
 def impulse_resolution(plant_or_params: Plant | DriveParams | None = None, n_pulses: int = 1000,
                        eps1_m: float = 0.1e-6, eps2: float = 0.01, tol_star: float = 1e-4, width_s: float = 1e-3,
                        *, coarse_step_star: float = 0.05, max_amplitude_star: float = 20.0, verify_below: int = 1,
-                       fmi_version: int = 2) -> ImpulseResolution:
-    """The impulse protocol: threshold search, A_op = A_th (1 + eps2), a fresh N-pulse experiment at A_op."""
+                       fmi_version: int = 2, progress: bool = False) -> ImpulseResolution:
+    """The impulse protocol: threshold search, A_op = A_th (1 + eps2), a fresh N-pulse experiment at A_op.
+    ``progress``: a bar on stderr counting the simulated pulses (the search's total is not known in advance)."""
     n_pulses = whole("n_pulses", n_pulses, 1)
     eps1_m = number("eps1_m", eps1_m, positive=True)
     eps2 = number("eps2", eps2, positive=True)
     tol_star = number("tol_star", tol_star, positive=True)
     width_s = number("width_s", width_s, positive=True)
     t0 = time.perf_counter()
-    with _plant(plant_or_params, fmi_version) as plant:
+    with _plant(plant_or_params, fmi_version) as plant, _bar(progress, "impulse protocol", "pulses") as bar:
+        def on_test(a: float, ok: bool, used: int) -> None:
+            bar.update(used)
+            bar.set_postfix_str(f"threshold search: tau* = {a:.4f} {'passes' if ok else 'fails'}")
+
         a_th, tests = find_threshold(plant, n_pulses, eps1_m, tol_star, width_s, coarse_step_star,
-                                     max_amplitude_star, verify_below)
+                                     max_amplitude_star, verify_below, on_test)
         a_op = a_th * (1.0 + eps2)
+        bar.set_postfix_str(f"experiment at A_op = {a_op:.4f}")
         incs = impulse_experiment(plant, a_op, n_pulses, width_s)
+        bar.update(n_pulses)
         params = plant.params
     return ImpulseResolution(params, a_th, a_op, incs, n_pulses, eps1_m, eps2, tol_star, width_s, tests,
                              time.perf_counter() - t0)
@@ -298,7 +317,7 @@ class LinearResolution(IncrementStats):
 
     def plot(self, path: str | Path) -> Path:
         title = (f"linear PD, f_l* = {self.params.f_l_star:.4g}: consistent at {self.counts} count(s), "
-                 f"resolution (max) = {self.resolution_m * 1e6:.4g} um")
+                 f"resolution (max) = {self.resolution_m * 1e6:.4g} µm")
         return plot_increments(self.increments_m, path, title, "step number")
 
 
@@ -325,9 +344,10 @@ def linear_steps(plant: Plant, counts: int, n_steps: int, warmup: int = 20, *, e
 def linear_resolution(plant_or_params: Plant | DriveParams | None = None, n_steps: int = 1000, warmup: int = 20,
                       eps1_m: float = 0.1e-6, max_counts: int = 50, *, Kp_star: float = 200.0,
                       Kd_star: float = 19.2, rate_hz: float = 1000.0, saturation_star: float = 20.0,
-                      max_settle_s: float = 60.0, fmi_version: int = 2) -> LinearResolution:
+                      max_settle_s: float = 60.0, fmi_version: int = 2, progress: bool = False) -> LinearResolution:
     """The linear protocol: k = 1, 2, ... counts, each a fresh run (warm-up then ``n_steps`` measured steps),
-    until every measured step moves the arm by more than eps1. A k is abandoned at its first failing step."""
+    until every measured step moves the arm by more than eps1. A k is abandoned at its first failing step.
+    ``progress``: a bar on stderr counting the set-point steps run."""
     n_steps = whole("n_steps", n_steps, 1)
     warmup = whole("warmup", warmup, 0)
     eps1_m = number("eps1_m", eps1_m, positive=True)
@@ -335,10 +355,12 @@ def linear_resolution(plant_or_params: Plant | DriveParams | None = None, n_step
     gains = dict(Kp_star=Kp_star, Kd_star=Kd_star, rate_hz=rate_hz, saturation_star=saturation_star)
     t0 = time.perf_counter()
     tried: list[dict[str, Any]] = []
-    with _plant(plant_or_params, fmi_version) as plant:
+    with _plant(plant_or_params, fmi_version) as plant, _bar(progress, "linear protocol", "steps") as bar:
         for k in range(1, max_counts + 1):
+            bar.set_postfix_str(f"k = {k} count(s)")
             incs = linear_steps(plant, k, n_steps, warmup, eps1_m=eps1_m, controller=LinearPD(**gains),
                                 max_settle_s=max_settle_s)
+            bar.update(warmup + len(incs))
             ok = len(incs) == n_steps and bool(np.all(incs > eps1_m))
             tried.append(dict(counts=k, steps_run=len(incs), consistent=ok,
                               failing_increment_m=None if ok else float(incs[-1])))

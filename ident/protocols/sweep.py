@@ -18,6 +18,7 @@ from ..common.checks import whole
 from ..common.plotting import figure, save
 from ..model.params import DriveParams
 from .resolution import ImpulseResolution, impulse_resolution
+from .transient import start_up_transient
 
 __all__ = ["FrictionSweep", "friction_levels", "friction_sweep"]
 
@@ -36,14 +37,19 @@ class FrictionSweep:
     results: list[ImpulseResolution]
 
     def to_frame(self) -> pd.DataFrame:
-        """One row per level: amplitudes (tau*), increments in um at the arm, the first increment, wall time."""
+        """One row per level: amplitudes (tau*), increments in µm at the arm, the first increment, where the max
+        falls, the end of the start-up transient and the steady-state max after it (``transient.start_up_transient``;
+        NaN when the level did not settle within the experiment), wall time."""
         rows = []
         for f, r in zip(self.f_l_star, self.results):
             first, median = r.increments_m[0], r.median_m
+            tr = start_up_transient(r.increments_m)
             rows.append(dict(f_l_star=f, threshold_amplitude=r.threshold_amplitude,
                              operating_amplitude=r.operating_amplitude, resolution_um=r.resolution_m * 1e6,
                              median_um=median * 1e6, min_um=r.min_m * 1e6, std_um=r.std_m * 1e6,
                              first_increment_um=first * 1e6, first_over_median=first / median if median else np.inf,
+                             max_pulse=tr.max_pulse, transient_end_pulse=tr.end_pulse if tr.settled else np.nan,
+                             steady_max_um=tr.steady_max_m * 1e6 if tr.steady_max_m is not None else np.nan,
                              n_pulses=r.n_pulses, elapsed_s=r.elapsed_s))
         return pd.DataFrame(rows)
 
@@ -61,33 +67,36 @@ class FrictionSweep:
         r2 = 1.0 - float(np.sum(resid**2)) / ss_tot if ss_tot > 0 else float("nan")
         return dict(slope_um=float(slope), intercept_um=float(intercept), r2=r2)
 
-    def plot(self, out_dir: str | Path, at_f_l_star: float = 0.1) -> dict[str, Path]:
-        """The four plots of the paper's section V as PNGs in ``out_dir``."""
+    def plot(self, out_dir: str | Path, at_f_l_star: float | None = 0.1) -> dict[str, Path]:
+        """The paper's section V figures as PNGs in ``out_dir``: max / median / min increment and the standard
+        deviation vs f_l* (log axis: the levels are log-spaced), and, unless ``at_f_l_star`` is None, the histogram
+        and increment sequence at the level nearest to it (one figure, ``increments_fl<level>.png``; the paper's
+        figs. 7 and 8). A caller that already shows that experiment (the study, when the drive's own f_l* is that
+        level) passes None so no figure is drawn twice."""
         out = Path(out_dir)
-        df, ref = self.to_frame(), self.at(at_f_l_star)
-        um = ref.increments_m * 1e6
-        fig, ax = figure()
-        ax.hist(um, bins=50)
-        ax.set(xlabel="arm increment [µm]", ylabel="pulses",
-               title=f"Histogram, f_l* = {ref.params.f_l_star:.3g}, N = {um.size}")
-        paths = {"histogram_fl0.1": save(fig, out / "histogram_fl0.1.png")}
-        fig, ax = figure()
-        ax.plot(np.arange(1, um.size + 1), um, ".", ms=3)
-        ax.set(xlabel="pulse number", ylabel="arm increment [µm]",
-               title=f"Increment vs pulse number, f_l* = {ref.params.f_l_star:.3g}")
-        paths["sequence_fl0.1"] = save(fig, out / "sequence_fl0.1.png")
+        df = self.to_frame()
+        paths: dict[str, Path] = {}
+        if at_f_l_star is not None:
+            ref = self.at(at_f_l_star)
+            name = f"increments_fl{ref.params.f_l_star:.3g}"
+            paths["increments"] = ref.plot(out / f"{name}.png")
         fig, ax = figure()
         for col, label in (("resolution_um", "max (resolution)"), ("median_um", "median"), ("min_um", "min")):
             ax.plot(df["f_l_star"], df[col], "o-", ms=3, label=label)
+        if "steady_max_um" in df and df["steady_max_um"].notna().any():
+            ax.plot(df["f_l_star"], df["steady_max_um"], "s:", ms=3, label="steady-state max (after the transient)")
         t = self.trend()
         ax.plot(df["f_l_star"], t["slope_um"] * df["f_l_star"] + t["intercept_um"], "k--", lw=0.8,
-                label=f"linear fit of max: slope {t['slope_um']:.3g} µm, R^2 {t['r2']:.2f}")
-        ax.set(xlabel="load friction level f_l*", ylabel="arm increment [µm]", title="Increment vs friction level")
+                label=f"linear fit of max: slope {t['slope_um']:.3g} µm, R² {t['r2']:.2f}")
+        ax.set_xscale("log")
+        ax.set(xlabel="load friction level f_l* (log scale)", ylabel="arm increment [µm]",
+               title="Increment vs friction level")
         ax.legend(fontsize=8)
         paths["delta_vs_friction"] = save(fig, out / "delta_vs_friction.png")
         fig, ax = figure()
         ax.plot(df["f_l_star"], df["std_um"], "o-", ms=3)
-        ax.set(xlabel="load friction level f_l*", ylabel="std of increments [µm]",
+        ax.set_xscale("log")
+        ax.set(xlabel="load friction level f_l* (log scale)", ylabel="std of increments [µm]",
                title="Standard deviation vs friction level")
         paths["std_vs_friction"] = save(fig, out / "std_vs_friction.png")
         return paths

@@ -384,31 +384,44 @@ def _plot(fit: RigidFit, cv: CrossValidation, sim: ClosedLoopSim, sim_p: ClosedL
     save(fig, path)
 
 
-def emps_report(out_dir: str | Path, data_dir: str | Path | None = None) -> Path:
+def emps_report(out_dir: str | Path, data_dir: str | Path | None = None, *, progress: bool = False) -> Path:
     """Run the whole benchmark (fit on DATA_EMPS, cross-test on DATA_EMPS_PULSES, closed-loop simulations of both)
     and write ``report.md`` (paper vs ours), ``emps.png`` and ``emps.json`` into ``out_dir`` (all or nothing);
-    returns the report."""
+    returns the report. ``progress``: a bar on stderr over the stages."""
     import json
 
+    from tqdm import tqdm
+
     d = _data_dir(data_dir)
-    tl = time.perf_counter()
-    log = load_emps(d / "DATA_EMPS.mat")
-    t_load = time.perf_counter() - tl
-    log_p = load_emps(d / "DATA_EMPS_PULSES.mat")
-    fit = identify_rigid(log)
-    cv = validate_rigid(fit, log_p)
-    sims = {(name, delay): simulate_closed_loop(fit, lg, control_delay_samples=delay)
-            for name, lg in (("DATA_EMPS", log), ("DATA_EMPS_PULSES", log_p)) for delay in (0, 1)}
-    summary = {"fit": fit.to_dict(), "cross_validation": cv.to_dict(),
-               "simulation": sims["DATA_EMPS", 0].to_dict(), "simulation_pulses": sims["DATA_EMPS_PULSES", 0].to_dict(),
-               "simulation_delay1": sims["DATA_EMPS", 1].to_dict(),
-               "simulation_pulses_delay1": sims["DATA_EMPS_PULSES", 1].to_dict(), "paper": PAPER, "load_s": t_load}
-    md = _header_md(log, log_p, fit, t_load) + _estimates_md(fit) + _figures_md(fit, cv, sims, log) + \
-        _differences_md(sims["DATA_EMPS", 1])
-    with staged_folder(out_dir, last="report.md") as out:
-        _plot(fit, cv, sims["DATA_EMPS", 0], sims["DATA_EMPS_PULSES", 0], out / "emps.png")
-        (out / "emps.json").write_text(json.dumps(summary, indent=2, default=float))
-        (out / "report.md").write_text(md)
+    with tqdm(total=4, desc="EMPS benchmark", disable=not progress) as bar:
+        bar.set_postfix_str("loading the data")
+        tl = time.perf_counter()
+        log = load_emps(d / "DATA_EMPS.mat")
+        t_load = time.perf_counter() - tl
+        log_p = load_emps(d / "DATA_EMPS_PULSES.mat")
+        bar.update()
+        bar.set_postfix_str("IDIM-LS fit and cross-test")
+        fit = identify_rigid(log)
+        cv = validate_rigid(fit, log_p)
+        bar.update()
+        bar.set_postfix_str("closed-loop simulations")
+        sims = {(name, delay): simulate_closed_loop(fit, lg, control_delay_samples=delay)
+                for name, lg in (("DATA_EMPS", log), ("DATA_EMPS_PULSES", log_p)) for delay in (0, 1)}
+        bar.update()
+        bar.set_postfix_str("writing the report")
+        summary = {"fit": fit.to_dict(), "cross_validation": cv.to_dict(),
+                   "simulation": sims["DATA_EMPS", 0].to_dict(),
+                   "simulation_pulses": sims["DATA_EMPS_PULSES", 0].to_dict(),
+                   "simulation_delay1": sims["DATA_EMPS", 1].to_dict(),
+                   "simulation_pulses_delay1": sims["DATA_EMPS_PULSES", 1].to_dict(), "paper": PAPER,
+                   "load_s": t_load}
+        md = _header_md(log, log_p, fit, t_load) + _estimates_md(fit) + _figures_md(fit, cv, sims, log) + \
+            _differences_md(sims["DATA_EMPS", 1])
+        with staged_folder(out_dir, last="report.md") as out:
+            _plot(fit, cv, sims["DATA_EMPS", 0], sims["DATA_EMPS_PULSES", 0], out / "emps.png")
+            (out / "emps.json").write_text(json.dumps(summary, indent=2, default=float))
+            (out / "report.md").write_text(md)
+        bar.update()
     return Path(out_dir) / "report.md"
 
 

@@ -16,7 +16,7 @@ A(A-1)W*^2/2 (times r L) at eps1, and load friction only adds bounded scatter. H
 - ``write_paper_effects``: runs the sweep, the combination of the two best effects, and writes ``paper_effects.md``
   with its plots and tables (staging folder, moved into place only when complete).
 
-Lengths are um at the arm tip, amplitudes tau* = T_m / f_m, as in ``ident.protocols.resolution``.
+Lengths are µm at the arm tip, amplitudes tau* = T_m / f_m, as in ``ident.protocols.resolution``.
 """
 from __future__ import annotations
 
@@ -79,7 +79,8 @@ def combine(a: EffectCase, b: EffectCase) -> EffectCase:
                       f"{a.name} and {b.name} together")
 
 
-def nominal_scales(base: DriveParams | None = None, eps1_m: float = 0.1e-6) -> dict[str, float]:
+def nominal_scales(base: DriveParams | None = None, eps1_m: float = 0.1e-6, width_s: float = 1e-3,
+                   threshold_amplitude: float | None = None) -> dict[str, float]:
     """Sizes of the nominal drive that the realistic magnitudes refer to.
 
     - ``w_load``: load ringing against the spring with the motor stuck, sqrt(K_s/J_l) [rad/s];
@@ -87,14 +88,19 @@ def nominal_scales(base: DriveParams | None = None, eps1_m: float = 0.1e-6) -> d
     - ``d_pulse``: the deflection a pulse produces at the nominal f_l* = 0.1: the load's breakaway windup f_l/K_s
       plus one eps1 step of the motor (eps1/L) [rad];
     - ``v_load``: the load's peak speed after such a pulse, w_load d_pulse [rad/s];
-    - ``v_motor``: the motor's speed at the end of a 1 ms pulse at the nominal threshold (A - 1) f_m W/J_m, A = 1.12.
+    - ``v_motor``: the motor's speed at the end of a pulse of ``width_s`` at the threshold, (A - 1) f_m W/J_m, with A
+      the measured ``threshold_amplitude`` when given, else the base model's threshold derived from eps1: the
+      amplitude whose Coulomb slide A(A-1)W*^2/2 (times r L) equals eps1.
     """
     p = base or DriveParams()
     w_load = math.sqrt(p.K_s / p.J_l)
     w_motor = math.sqrt(p.r**2 * p.K_s / p.J_m)
     d_pulse = p.f_l / p.K_s + eps1_m / p.arm_length
+    if threshold_amplitude is None:
+        slide = 2 * eps1_m / ((width_s / p.T_c) ** 2 * p.r * p.arm_length)   # A(A-1) = slide
+        threshold_amplitude = (1 + math.sqrt(1 + 4 * slide)) / 2
     return dict(w_load=w_load, w_motor=w_motor, d_pulse=d_pulse, v_load=w_load * d_pulse,
-                v_motor=0.12 * p.f_m * 1e-3 / p.J_m)
+                v_motor=(threshold_amplitude - 1) * p.f_m * width_s / p.J_m)
 
 
 def effect_cases(base: DriveParams | None = None) -> list[EffectCase]:
@@ -118,7 +124,7 @@ def effect_cases(base: DriveParams | None = None) -> list[EffectCase]:
                    why="damping ratio 5 %: lubricated bearings and seals at the upper end of what is usual"),
         EffectCase("stribeck_slow", "stribeck", {"stribeck_ratio": 0.5, "stribeck_velocity": 1e-4},
                    why=f"static / Coulomb = 1.5 on both bodies (static excess 0.5 f: scales with f_l by definition); "
-                       f"v_s = 1e-4 rad/s at the load ({1e-4 * p.arm_length * 1e6:.0f} um/s at the arm tip, motor "
+                       f"v_s = 1e-4 rad/s at the load ({1e-4 * p.arm_length * 1e6:.0f} µm/s at the arm tip, motor "
                        f"v_s/r = {1e-4 / p.r:.2g} rad/s) is comparable to the load's peak speed in an impulse "
                        f"response ({s['v_load']:.1e} rad/s), so the load's friction drops from static to Coulomb "
                        "once it moves"),
@@ -165,7 +171,7 @@ def _first_motion(x: np.ndarray) -> tuple[float, int]:
 
 
 def level_row(case: EffectCase, f_l_star: float, r: ImpulseResolution) -> dict[str, Any]:
-    """One row of the sweep table (um at the arm)."""
+    """One row of the sweep table (µm at the arm)."""
     x = r.increments_m * 1e6
     med = float(np.median(x))
     first_motion, first_pulse = _first_motion(x)
@@ -236,7 +242,7 @@ class EffectsSweep:
     elapsed_s: float = float("nan")
 
     def to_frame(self) -> pd.DataFrame:
-        """One row per case and level (um at the arm): A_th, A_op, max (resolution), median, min, std, the first
+        """One row per case and level (µm at the arm): A_th, A_op, max (resolution), median, min, std, the first
         increment (pulse 1), the first motion (first nonzero increment) and its pulse, ratios to the median."""
         return pd.DataFrame([level_row(c, f, r) for c in self.cases
                              for f, r in zip(self.f_l_star, self.results[c.name])])
@@ -340,7 +346,12 @@ class _Facts:
 
     def __init__(self, sweep: EffectsSweep, summary: pd.DataFrame) -> None:
         self.p, self.f_l_star = sweep.base, sweep.f_l_star
-        self.s = nominal_scales(self.p)
+        base = sweep.results.get(BASE_CASE.name, [])
+        a_th = float(np.median([r.threshold_amplitude for r in base])) if base else None
+        self.s = nominal_scales(self.p, threshold_amplitude=a_th)   # the base's measured threshold
+        # the motor's turn over the longest base experiment [rad]: its arm travel / (r L)
+        self.motor_turn = max((float(np.sum(r.increments_m)) for r in base), default=math.nan) / (
+            self.p.arm_length * self.p.r)
         self.rows = {r["case"]: r for r in summary.to_dict(orient="records")}
         self.th = sweep.to_frame().groupby("case")["threshold_amplitude"].agg(["min", "max"])
         self.um = self.p.arm_length * 1e6  # rad at the load -> µm at the arm
@@ -374,14 +385,14 @@ eps1, and in the long run the load follows the motor, so the median is the motor
 Coulomb friction that slide is A(A-1)W*^2/2 (times r L) and depends on the load only through the spring torque
 r K_s d <= r f_l (at most {p.r * f_hi:.2g} f_m here): the median is pinned to about eps1 at every
 f_l*. Load friction can only act through the *scatter* around that median, i.e. through how the load sticks and
-releases stored deflection; in the base model that is bounded by the band +-f_l/K_s (at most {band_hi:.2f} um at
+releases stored deflection; in the base model that is bounded by the band +-f_l/K_s (at most {band_hi:.2f} µm at
 f_l* = {f_hi:.3g}) and the release is even (period-two alternation), so the base has a bounded,
 flat max ({v('base')}). An effect reproduces the paper only if it makes the load store *more than it releases
 evenly*, in proportion to f_l.
 
 **Stribeck friction** (F = dir f (1 + s exp(-(v/v_s)^2)), static band f (1 + s)): the load breaks away only at
 K_s d = (1 + s) f_l but then slides against about f_l once |v_l| >> v_s, so it swings past its kinetic equilibrium
-f_l/K_s and releases about 2 s f_l/K_s ({2 * 0.5 * p.f_m / p.K_s * um:.2f} f_l* um at the arm for s = 0.5) on top
+f_l/K_s and releases about 2 s f_l/K_s ({2 * 0.5 * p.f_m / p.K_s * um:.2f} f_l* µm at the arm for s = 0.5) on top
 of the motor's share: an overshoot proportional to f_l, i.e. a slope, and, from the fresh start with zero
 deflection, a first motion that releases the whole windup (1 + s) f_l/K_s at once: the avalanche. The motor has
 the same law (v_s/r), so it needs tau* > 1 + s to move (A_th {A('stribeck_slow')} instead of {A('base')}) and
@@ -424,7 +435,7 @@ opposes it (kinetic f_l + H): the opposite of Stribeck, so the release is damped
 does not produce growth or an avalanche. H = 0.5 f_l: {v('hysteresis_half_fl')}; H = f_l: {v('hysteresis_fl')}.
 
 **Kinematic error** (d = r q_m + A sin(2 q_m + phi) - q_l): over an experiment the motor turns
-~{300 * 0.11e-6 / (p.arm_length * p.r) * 1e3:.2g} mrad, so sin(2 q_m) hardly changes and the gear ratio g = r + 2 A cos(...)
+~{facts.motor_turn * 1e3:.2g} mrad, so sin(2 q_m) {'hardly changes' if 2 * facts.motor_turn < 0.1 else 'changes'} and the gear ratio g = r + 2 A cos(...)
 differs from r by 2A/r = {2 * 3 * ARCSEC / p.r:.1%}: the impulse response is the base's. {v('kinematic_error_3arcsec')}.
 """
 
@@ -447,22 +458,22 @@ def _claims(sweep: EffectsSweep, summary: pd.DataFrame) -> str:
                      "base model, the first breakaway releases only the last pulse's excess.")
         top = at("stribeck_slow", sweep.f_l_star.max())
         lines.append(f"- But the paper's sequence then 'gets smooth'; here it does not: after the first motion "
-                     f"({top['first_motion_um']:.2f} um) the load keeps sticking and slipping (largest later increment "
-                     f"{top['later_max_um']:.2f} um, min {top['min_um']:.2g} um), so the first motion is large against "
+                     f"({top['first_motion_um']:.2f} µm) the load keeps sticking and slipping (largest later increment "
+                     f"{top['later_max_um']:.2f} µm, min {top['min_um']:.2g} µm), so the first motion is large against "
                      "the median of that stick-slip sequence, not against the later jumps (right panel of the plot).")
-        lines.append(f"- The same case raises the max with f_l* (slope {r['slope_um']:.3g} um per unit f_l*, x"
+        lines.append(f"- The same case raises the max with f_l* (slope {r['slope_um']:.3g} µm per unit f_l*, x"
                      f"{r['growth']:.2f}; {'close to a line' if r['r2'] >= LINEAR_R2 else 'more a step at the top levels than a line'}, "
                      f"R^2 {r['r2']:.2f}), on a "
-                     f"floor set by the motor's own static excess (intercept {r['intercept_um']:.2f} um; at f_l* = 0.1 "
-                     f"the resolution is {at('stribeck_slow', 0.1)['resolution_um']:.2f} um against the paper's 0.30 um "
-                     f"and the base's {at(BASE_CASE.name, 0.1)['resolution_um']:.2f} um; not tuned).")
+                     f"floor set by the motor's own static excess (intercept {r['intercept_um']:.2f} µm; at f_l* = 0.1 "
+                     f"the resolution is {at('stribeck_slow', 0.1)['resolution_um']:.2f} µm against the paper's 0.30 µm "
+                     f"and the base's {at(BASE_CASE.name, 0.1)['resolution_um']:.2f} µm; not tuned).")
     combo = [c for c in S if "+" in c]
     for c in combo:
         r = S[c]
         lines.append(f"- Combination {c}: {_verdict_words(r)} (slope {r['slope_um']:.3g} µm, R^2 {r['r2']:.2f}, growth "
                      f"x{r['growth']:.2f}, first motion {r['first_over_median_hi']:.2f} x median).")
     lines.append("- Realism: the effects that act need magnitudes at the edge of the plausible range at these tiny "
-                 "motions (a Stribeck velocity of 1e-4 rad/s at the load, i.e. friction that drops within a few um/s "
+                 "motions (a Stribeck velocity of 1e-4 rad/s at the load, i.e. friction that drops within a few µm/s "
                  "of sliding at the teeth; 10 - 30 % stiffening at 0.1 arcsec of twist). Viscous friction, "
                  "asymmetry, hysteresis and kinematic error at realistic sizes leave the base's bounded, flat max.")
     return "\n".join(lines)
@@ -539,7 +550,7 @@ friction level f_l\\*** and that at high friction **the first increment is very 
 smooth. The base model does not reproduce either (see the study report: the median is pinned to eps1 by the
 motor's own breakaway, load friction only adds bounded scatter). Here each effect of the library is added to the
 nominal drive at realistic magnitudes and the impulse protocol is rerun at {len(sweep.f_l_star)} levels f_l\\* =
-{lo:.3g} ... {hi:.3g} (N = {n} pulses per experiment, eps1 = 0.1 um, eps2 = 0.01; fewer than the paper's 25 x 1000
+{lo:.3g} ... {hi:.3g} (N = {n} pulses per experiment, eps1 = 0.1 µm, eps2 = 0.01; fewer than the paper's 25 x 1000
 because with effects on the FMU integrates with RK4 instead of its closed form). Nothing is tuned to the paper's
 figures.
 
