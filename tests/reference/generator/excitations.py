@@ -202,12 +202,14 @@ def _pd_steps(rng: np.random.Generator, f_m: float, rate: float, n: int, T_c: fl
               count_rad: float) -> Excitation:
     steps = np.zeros(n + 1)
     k = int(round(LEAD_IN_S * rate))
-    sizes = []
+    sizes, at = [], []
     while k < n:
         size = int(round(math.exp(rng.uniform(math.log(2), math.log(300))))) * int(rng.choice((-1, 1)))
         steps[k] = size
         sizes.append(size)
+        at.append(k)
         k += int(round(rng.uniform(0.15, 0.4) * rate))
     design = PDDesign(f_m, T_c, 1.0 / rate, count_rad, steps)
     return Excitation("pd_steps", {"kp_star": PD_KP_STAR, "kd_star": PD_KD_STAR, "saturation_star":
-                                   PD_SATURATION_STAR, "setpoint_steps_counts": sizes}, None, design)
+                                   PD_SATURATION_STAR, "setpoint_steps_counts": sizes, "setpoint_step_samples": at},
+                      None, design)

@@ -39,7 +39,7 @@ class _ModeData:
     scales: np.ndarray         # per-guard scale
     phi: np.ndarray            # expm(M h)
     S: np.ndarray              # (K+1, n+2, n+2): (M h)^k / k!
-    Q: np.ndarray              # (K+1, n_g, n+2): E S_k
+    Q: np.ndarray              # ((K+1) n_g, n+2): E S_k, stacked
     k2: np.ndarray             # k (k-1) for the p'' bound
     grid_T: np.ndarray         # (GRID+1, K+1): s_j^k on the unit grid
 
@@ -109,7 +109,8 @@ class LinearEngine:
         K = len(terms) - 1
         ks = np.arange(K + 1)
         grid = np.linspace(0.0, 1.0, GRID + 1)
-        return _ModeData(h, m, labels, np.array([g.scale for g in labels]), expm(Mh), S, np.einsum("ij,kjl->kil", E, S),
+        Q = np.einsum("ij,kjl->kil", E, S).reshape(-1, M.shape[0])
+        return _ModeData(h, m, labels, np.array([g.scale for g in labels]), expm(Mh), S, Q,
                          (ks * (ks - 1)).astype(float), grid[:, None] ** ks[None, :])
 
     # ---- one call ----
@@ -151,8 +152,13 @@ class LinearEngine:
     # ---- zeros of the guard polynomials ----
     def _first_zero(self, data: _ModeData, z: np.ndarray, s_max: float) -> tuple[float, Guard] | None:
         """Earliest zero in (0, s_max] of any guard polynomial, with the guard (None if there is none)."""
-        C = data.Q @ z                                           # (K+1, n_g): guard i = sum_k C[k, i] s^k
+        C = (data.Q @ z).reshape(-1, len(data.labels))          # (K+1, n_g): guard i = sum_k C[k, i] s^k
         fresh = np.abs(C[0]) <= FRESH_TOL * data.scales
+        if s_max == 1.0 and not fresh.any():                     # the common case: one matrix product decides
+            V = data.grid_T @ C
+            lower = np.minimum(V[:-1], V[1:]) - (data.k2 @ np.abs(C)) * (0.125 / GRID**2)
+            if lower.min() > 0.0:
+                return None
         live = np.ones(C.shape[1], dtype=bool)
         for i in np.flatnonzero(fresh):
             q = _strip(C[:, i], data.scales[i])

@@ -346,7 +346,7 @@ def _generate(seed: int, scenario: str, kind: str, duration_s: float, rate_hz: f
     effects = merge(*parts) if parts else Effects()
     plants = [HybridPlant(ctx.case.drive), HybridPlant(ctx.case.drive, effects)]
     start = draw_start(seed, ctx.case.drive, plants)
-    full = run(ctx.case, effects, start)
+    full = ctx.clean if not parts and start == ctx.start else run(ctx.case, effects, start)
     snr = _snr(ctx, start, parts, specs, full)
     return _assemble(ctx.case, scenario, full, start, effects, [s[0] for s in specs], snr, truth_bits)
 

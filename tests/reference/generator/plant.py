@@ -535,7 +535,8 @@ class HybridPlant:
         """Nothing can change while the command stays ``u``: both bodies stuck and the lag settled."""
         if mode[MOTOR] != STUCK or mode[LOAD] != STUCK:
             return False
-        return self.i_lag < 0 or x[self.i_lag] == u
+        # the lag's exponential approach is taken as settled 1e-15 f_m away (it would never reach u exactly)
+        return self.i_lag < 0 or abs(x[self.i_lag] - u) <= 1e-15 * self.drive.f_m
 
     def transition(self, x: Vector, u: float, mode: Mode, guard: Guard) -> tuple[Vector, Mode]:
         """The mode after ``guard`` reached zero at ``x`` (the crossed threshold decides the direction, so that a
@@ -578,13 +579,16 @@ class HybridPlant:
         raise RuntimeError(f"no consistent mode at x = {x} (mode {mode})")
 
     def energy(self, x: Vector) -> float:
-        """Kinetic + elastic + stored Maxwell-element energy [J]."""
+        """Kinetic + elastic spring energy [J]. With ``track_energy`` the works obey
+        W_in = energy + W_fric + W_hyst, W_hyst being all work done on the hysteresis elements (what they store,
+        ``hysteresis_stored``, plus what they dissipate)."""
         d_ = self.drive
-        e = 0.5 * d_.J_m * x[2] ** 2 + 0.5 * d_.J_l * x[3] ** 2 + self.spring_energy(self.deflection(x))
+        return 0.5 * d_.J_m * x[2] ** 2 + 0.5 * d_.J_l * x[3] ** 2 + self.spring_energy(self.deflection(x))
+
+    def hysteresis_stored(self, x: Vector) -> float:
+        """Energy held by the Maxwell-slip elements' springs [J]."""
         hyst = self.effects.hysteresis
-        for i in range(self.n_elements):
-            e += 0.5 * x[self.i_w + i] ** 2 / hyst.stiffnesses[i]
-        return e
+        return sum(0.5 * x[self.i_w + i] ** 2 / hyst.stiffnesses[i] for i in range(self.n_elements))
 
 
 def _dahl_rate(z: float, dd: float, direction: int, dahl: Dahl) -> float:
