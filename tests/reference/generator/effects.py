@@ -40,13 +40,21 @@ measured again and recorded in its truth.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
-from typing import Callable
 
 import numpy as np
 
-from .plant import (CubicStiffness, Dahl, Effects, FrictionRipple, KinematicError, MaxwellSlip, Stribeck,
-                    ThreeSlopeStiffness)
+from .plant import (
+    CubicStiffness,
+    Dahl,
+    Effects,
+    FrictionRipple,
+    KinematicError,
+    MaxwellSlip,
+    Stribeck,
+    ThreeSlopeStiffness,
+)
 
 LIBRARY_EFFECTS = ("viscous_motor", "viscous_load", "stribeck", "asymmetric_friction", "hardening", "hysteresis",
                    "kinematic_error")

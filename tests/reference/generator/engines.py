@@ -19,12 +19,12 @@ Both are checked against the independent ``tests/reference/event_driven.py`` (ba
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, Protocol
+from typing import Protocol
 
 import numpy as np
 from scipy.integrate import DOP853
-from scipy.linalg import expm
 from scipy.optimize import brentq
 
 from .plant import Guard, HybridPlant, Mode, Vector

@@ -24,8 +24,8 @@ Every design is a command per sample, held over the sample interval (the log con
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -44,7 +44,7 @@ class Excitation:
     kind: str
     params: dict
     schedule: np.ndarray | None = None
-    pd: "PDDesign | None" = None
+    pd: PDDesign | None = None
 
     def command(self) -> Callable[[int, float], float]:
         """A fresh ``command(k, q_m_true) -> torque`` for one simulation (a PD keeps state)."""
@@ -87,7 +87,7 @@ def draw(kind: str, rng: np.random.Generator, f_m: float, rate_hz: float, durati
          T_c: float = math.sqrt(2e-5 / 0.01), count_rad: float = 2 * math.pi / 12566) -> Excitation:
     """Draw an excitation of ``kind`` for a log of ``duration_s`` at ``rate_hz`` (n = round(duration * rate)
     commanded intervals)."""
-    n = int(round(duration_s * rate_hz))
+    n = round(duration_s * rate_hz)
     if kind == "pd_steps":
         return _pd_steps(rng, f_m, rate_hz, n, T_c, count_rad)
     makers = {"default": _default, "steps": _steps, "pulse_train": _pulse_train, "bidirectional": _bidirectional,
@@ -104,10 +104,10 @@ class _Builder:
     def __init__(self, rate_hz: float, n: int) -> None:
         self.rate, self.n = rate_hz, n
         self.tau = np.zeros(n + int(2.0 * rate_hz) + 10)
-        self.k = int(round(LEAD_IN_S * rate_hz))
+        self.k = round(LEAD_IN_S * rate_hz)
 
     def samples(self, seconds: float) -> int:
-        return max(1, int(round(seconds * self.rate)))
+        return max(1, round(seconds * self.rate))
 
     def hold(self, level: float, seconds: float) -> None:
         m = self.samples(seconds)
@@ -201,14 +201,14 @@ def _mix(rng: np.random.Generator, rate: float, n: int) -> tuple[np.ndarray, dic
 def _pd_steps(rng: np.random.Generator, f_m: float, rate: float, n: int, T_c: float,
               count_rad: float) -> Excitation:
     steps = np.zeros(n + 1)
-    k = int(round(LEAD_IN_S * rate))
+    k = round(LEAD_IN_S * rate)
     sizes, at = [], []
     while k < n:
-        size = int(round(math.exp(rng.uniform(math.log(2), math.log(300))))) * int(rng.choice((-1, 1)))
+        size = round(math.exp(rng.uniform(math.log(2), math.log(300)))) * int(rng.choice((-1, 1)))
         steps[k] = size
         sizes.append(size)
         at.append(k)
-        k += int(round(rng.uniform(0.15, 0.4) * rate))
+        k += round(rng.uniform(0.15, 0.4) * rate)
     design = PDDesign(f_m, T_c, 1.0 / rate, count_rad, steps)
     return Excitation("pd_steps", {"kp_star": PD_KP_STAR, "kd_star": PD_KD_STAR, "saturation_star":
                                    PD_SATURATION_STAR, "setpoint_steps_counts": sizes, "setpoint_step_samples": at},

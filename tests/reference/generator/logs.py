@@ -23,19 +23,29 @@ import json
 import math
 import os
 import tempfile
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from . import excitations as exc
-from .effects import (CLASSES, LIBRARY_EFFECTS, OUTSIDE_LIBRARY_EFFECTS, VARIANTS, WEAK_SNR, EffectFamily, RunStats,
-                      draw_family, merge, weak_magnitude)
+from .effects import (
+    CLASSES,
+    LIBRARY_EFFECTS,
+    OUTSIDE_LIBRARY_EFFECTS,
+    VARIANTS,
+    WEAK_SNR,
+    EffectFamily,
+    RunStats,
+    draw_family,
+    merge,
+    weak_magnitude,
+)
 from .engines import RKEngine, simulate
 from .linear import LinearEngine
-from .plant import Drive, Effects, HybridPlant, STUCK
+from .plant import Drive, Effects, HybridPlant
 
 RATES_HZ = (1000.0, 2000.0, 2500.0, 4000.0, 5000.0, 8000.0, 10000.0)
 RATIOS = (1 / 50, 1 / 80, 1 / 100, 1 / 120, 1 / 160)
@@ -211,7 +221,7 @@ class Case:
 
     @property
     def n(self) -> int:
-        return int(round(self.duration_s * self.rate_hz))
+        return round(self.duration_s * self.rate_hz)
 
     @property
     def sigma(self) -> float:

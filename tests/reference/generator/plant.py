@@ -34,8 +34,9 @@ or its slide direction. Within a mode the right-hand side is smooth; every mode 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
-from typing import Callable, Literal
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Literal
 
 MOTOR, LOAD = 0, 1
 STUCK = 0
@@ -59,7 +60,7 @@ class Drive:
     encoder_counts_per_rev: int = 12566
 
     @classmethod
-    def from_nondim(cls, K_star: float, J_l_star: float, f_l_star: float, **si: float) -> "Drive":
+    def from_nondim(cls, K_star: float, J_l_star: float, f_l_star: float, **si: float) -> Drive:
         """A drive from K* = K_s/f_m [1/rad], J_l* = J_l/J_m, f_l* = f_l/f_m (J_m, f_m, ... from ``si``)."""
         base = cls(**si)
         return cls(**{**asdict(base), "K_s": K_star * base.f_m, "J_l": J_l_star * base.J_m,
@@ -599,6 +600,19 @@ def _dahl_rate(z: float, dd: float, direction: int, dahl: Dahl) -> float:
     return dahl.stiffness * dd * math.copysign(abs(e) ** dahl.exponent, e)
 
 
-__all__ = ["Drive", "Effects", "Stribeck", "CubicStiffness", "ThreeSlopeStiffness", "Dahl", "MaxwellSlip",
-           "KinematicError", "FrictionRipple", "HybridPlant", "Guard", "MOTOR", "LOAD", "STUCK"]
-_ = field
+__all__ = [
+    "LOAD",
+    "MOTOR",
+    "STUCK",
+    "CubicStiffness",
+    "Dahl",
+    "Drive",
+    "Effects",
+    "FrictionRipple",
+    "Guard",
+    "HybridPlant",
+    "KinematicError",
+    "MaxwellSlip",
+    "Stribeck",
+    "ThreeSlopeStiffness",
+]
