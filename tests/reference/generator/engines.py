@@ -30,7 +30,7 @@ from scipy.optimize import brentq
 from .plant import Guard, HybridPlant, Mode, Vector
 
 MAX_EVENTS_PER_SAMPLE = 2000
-FRESH_TOL = 1e-9          # a guard within FRESH_TOL * scale of zero at a segment start has just been switched on
+FRESH_TOL = 1e-9          # a guard within FRESH_TOL * scale of zero at a step start fires below -FRESH_TOL * scale
 
 
 class Engine(Protocol):
@@ -46,7 +46,7 @@ class SampleRecord:
     q_m: np.ndarray
     q_l: np.ndarray
     states: np.ndarray | None = None
-    events: int = 0
+    events: int = 0            # mode changes (located events and those applied by settle)
 
 
 def advance(plant: HybridPlant, engine: Engine, x: Vector, mode: Mode, u: float, dt: float) -> tuple[Vector, Mode,
@@ -78,7 +78,7 @@ def simulate(plant: HybridPlant, engine: Engine, x: Vector, mode: Mode, dt: floa
     q_m, q_l = np.empty(n + 1), np.empty(n + 1)
     states = np.empty((n + 1, plant.n_states)) if keep_states else None
     commands = np.empty(n)
-    events = 0
+    changes = plant.mode_changes
     for k in range(n + 1):
         q_m[k] = x[0]
         q_l[k] = x[1]
@@ -87,9 +87,8 @@ def simulate(plant: HybridPlant, engine: Engine, x: Vector, mode: Mode, dt: floa
         if k == n:
             break
         u = commands[k] = command(k, x[0])
-        x, mode, e = advance(plant, engine, x, mode, u, dt)
-        events += e
-    return SampleRecord(q_m, q_l, states, events), commands
+        x, mode, _ = advance(plant, engine, x, mode, u, dt)
+    return SampleRecord(q_m, q_l, states, plant.mode_changes - changes), commands
 
 
 # ----------------------------------------------------------------------------------------- Runge-Kutta ---------
@@ -178,8 +177,8 @@ class RKEngine:
     def propagate(self, x: Vector, u: float, mode: Mode, span: float) -> tuple[Vector, float, Guard | None]:
         rhs = self.plant.rhs_for(mode)
         labels, gfun = self.plant.guards_for(mode)
+        tols = [FRESH_TOL * lab.scale for lab in labels]
         g0 = gfun(x, u)
-        fresh = [abs(v) <= FRESH_TOL * lab.scale for v, lab in zip(g0, labels)]
         f0 = rhs(x, u)
         gd0 = _guard_rates(gfun, x, u, f0, self.h)
         t = 0.0
@@ -192,14 +191,16 @@ class RKEngine:
             self.steps += 1
             g1 = gfun(x1, u)
             gd1 = _guard_rates(gfun, x1, u, f1, h)
-            hit = _first_zero(self, rhs, gfun, labels, x, u, f0, h, (g0, gd0, g1, gd1), fresh)
+            # a guard that starts within round-off of zero fires below -tol (settle's tolerance): no Zeno loop at
+            # a tangency (e.g. a Maxwell element reaching its break torque just as the deflection turns)
+            shift = [tol if abs(g) <= tol else 0.0 for g, tol in zip(g0, tols)]
+            hit = _first_zero(self, rhs, gfun, labels, x, u, f0, h, (g0, gd0, g1, gd1), shift)
             h_new = h * min(5.0, 0.9 * err ** (-1.0 / 8.0)) if err > 0.0 else 5.0 * h
             self.h = h_new if h >= self.h else max(self.h, h_new)  # a step cut short by the span keeps self.h
             if hit is not None:
                 xe, tau, guard = hit
                 return xe, t + tau, guard
             x, f0, g0, gd0, t = x1, f1, g1, gd1, t + h
-            fresh = [False] * len(fresh)
         return x, span, None
 
 
@@ -211,16 +212,19 @@ def _guard_rates(gfun: Callable[[Vector, float], Vector], x: Vector, u: float, f
     return [(p - m) / (2.0 * eps) for p, m in zip(plus, minus)]
 
 
-def _candidates(values: tuple[Vector, Vector, Vector, Vector], fresh: list[bool], h: float) -> list[tuple[int,
+def _candidates(values: tuple[Vector, Vector, Vector, Vector], shift: list[float], h: float) -> list[tuple[int,
                                                                                                           float]]:
-    """Guards that reach zero in (0, h]: (index, a time by which they are negative) -- a sign change at the
-    end, or a dip below zero of the cubic Hermite interpolant of values and rates."""
+    """Guards (shifted by ``shift``) that reach zero in (0, h]: (index, a time by which they are negative) -- a
+    sign change at the end, or a dip below zero of the cubic Hermite interpolant of values and rates."""
     g0, gd0, g1, gd1 = values
     out = []
     for j, (a, da, b, db) in enumerate(zip(g0, gd0, g1, gd1)):
-        if b < 0.0 and (a > 0.0 or fresh[j]):
+        a, b = a + shift[j], b + shift[j]
+        if a < 0.0:
+            continue
+        if b < 0.0:
             out.append((j, h))
-        elif b >= 0.0 and (a > 0.0 or fresh[j]) and da < 0.0 < db:
+        elif da < 0.0 < db:
             tmin, vmin = _hermite_min(a, da * h, b, db * h)
             if vmin < 0.0:
                 out.append((j, tmin * h))
@@ -240,44 +244,33 @@ def _hermite_min(a: float, da: float, b: float, db: float) -> tuple[float, float
 
 
 def _first_zero(engine: RKEngine, rhs: Callable, gfun: Callable, labels: list[Guard], x: Vector, u: float,
-                f0: Vector, h: float, values: tuple, fresh: list[bool]) -> tuple[Vector, float, Guard] | None:
-    """Locate the first zero in (0, h] of the guards that may cross in this step (None if none does)."""
-    cands = _candidates(values, fresh, h)
+                f0: Vector, h: float, values: tuple, shift: list[float]) -> tuple[Vector, float, Guard] | None:
+    """Locate the first zero in (0, h] of the (shifted) guards that may cross in this step (None if none does)."""
+    cands = _candidates(values, shift, h)
     if not cands:
         return None
     idx = [j for j, _ in cands]
     hi = min(t for _, t in cands)
+    step = _step_function(len(x))
 
     def worst(tau: float) -> tuple[float, Vector, int]:
-        xt = _step_function(len(x))(rhs, x, u, f0, tau)[0]
+        xt = step(rhs, x, u, f0, tau)[0]
         g = gfun(xt, u)
-        j = min(idx, key=lambda i: g[i] / labels[i].scale)
-        return g[j] / labels[j].scale, xt, j
+        j = min(idx, key=lambda i: (g[i] + shift[i]) / labels[i].scale)
+        return (g[j] + shift[j]) / labels[j].scale, xt, j
 
     v_hi, x_hi, j_hi = worst(hi)
     if v_hi >= 0.0:
         return None  # a Hermite dip that the exact trajectory does not make
-    lo = 0.0
-    if any(fresh[j] for j in idx):  # a guard that starts at zero: find a time where all are positive again
-        lo = hi
-        for _ in range(40):
-            lo *= 0.25
-            v, xt, j = worst(lo)
-            if v > 0.0:
-                break
-            hi, x_hi, j_hi = lo, xt, j
-        else:  # negative at once: a direction assumed at dd = 0 (Dahl, Maxwell) is the wrong one; switch now
-            return x, 0.0, labels[j_hi]
-    last: dict = {}
+    last = {"tau": hi, "x": x_hi, "j": j_hi}
 
     def value(tau: float) -> float:
         v, xt, j = worst(tau)
-        if v < 0.0 and tau <= last.get("tau", math.inf):
+        if v < 0.0 and tau <= last["tau"]:
             last.update(tau=tau, x=xt, j=j)
         return v
 
-    last.update(tau=hi, x=x_hi, j=j_hi)
-    root = brentq(value, lo, hi, xtol=1e-13 * h, rtol=4 * np.finfo(float).eps)
+    root = brentq(value, 0.0, hi, xtol=1e-13 * h, rtol=4 * np.finfo(float).eps)
     if value(root) >= 0.0:  # brentq returns either side of the zero; the event state must have crossed it
         value(min(hi, root + 1e-13 * h))
     return last["x"], last["tau"], labels[last["j"]]

@@ -8,8 +8,10 @@ i is the polynomial p_i(s) = sum_k (E S_k z0)_i s^k on s in [0, 1]. Its first ze
 * on a grid of G cells, p >= min(end values) - max|p''| cell^2 / 8 inside a cell (Taylor), with
   max|p''| <= sum_k k (k-1) |c_k|; a cell whose bound is positive holds no zero;
 * a cell that fails is halved until the bound clears or a negative value is found, then brentq on p;
-* a guard that starts at zero (just switched on) is divided by s^m, m its number of vanishing coefficients, and the
-  quotient (positive at 0+ by the Karnopp decision) is checked instead.
+* a guard that starts within round-off of zero (just switched on, |p(0)| <= 1e-9 of its scale) fires only below
+  -1e-9 of its scale, the tolerance ``HybridPlant.settle`` decides with: a body that micro-slips and returns is
+  still caught, and a tangency (a Maxwell element reaching its break torque just as the deflection turns) cannot
+  flip the mode back and forth forever.
 
 A stuck body's angle is copied, not propagated, so that it is exactly constant.
 """
@@ -85,15 +87,17 @@ class LinearEngine:
         M[:n, n + 1], E[:, n + 1] = f0, g0
         return M, E, labels
 
-    def _mode(self, mode: Mode, dt: float) -> _ModeData:
-        key = (mode, dt)
+    def _mode(self, mode: Mode, dt: float, settled: bool = False) -> _ModeData:
+        key = (mode, dt, settled)
         data = self.cache.get(key)
         if data is None:
-            data = self.cache[key] = self._build(mode, dt)
+            data = self.cache[key] = self._build(mode, dt, settled)
         return data
 
-    def _build(self, mode: Mode, dt: float) -> _ModeData:
+    def _build(self, mode: Mode, dt: float, settled: bool) -> _ModeData:
         M, E, labels = self._affine(mode)
+        if settled:     # T_a = T_cmd exactly: its rate (T_cmd - T_a) / tau_a is identically zero
+            M[self.plant.i_lag, :] = 0.0
         rho = float(np.max(np.abs(np.linalg.eigvals(M)))) if M.any() else 0.0
         m = max(1, math.ceil(rho * dt / RHO_H))
         h = dt / m
@@ -119,10 +123,10 @@ class LinearEngine:
         self.dt = dt
 
     def propagate(self, x: Vector, u: float, mode: Mode, span: float) -> tuple[Vector, float, Guard | None]:
-        data = self._mode(mode, self.dt)
         z = np.array(list(x) + [u, 1.0])
         t = 0.0
         while span - t > 1e-15 * self.dt:
+            data = self._mode(mode, self.dt, self._settle_lag(z, u))
             s_max = min(1.0, (span - t) / data.h)
             hit = self._first_zero(data, z, s_max)
             self.steps += 1
@@ -133,6 +137,16 @@ class LinearEngine:
             z = data.phi @ z if s_max == 1.0 else self._at(data, z, s_max)
             t += s_max * data.h
         return self._exact(x, z, mode), span, None
+
+    def _settle_lag(self, z: np.ndarray, u: float) -> bool:
+        """True (and T_a set to u) once the lag is within 1e-15 f_m of the command: from then on the lag's fast
+        eigenvalue (1/tau_a, which sets the sub-step) is not excited, and a mode without it is used; a lag much
+        shorter than the sample costs ~37 sub-steps of tau_a per command change, not dt / tau_a per sample."""
+        i = self.plant.i_lag
+        if i < 0 or abs(z[i] - u) > 1e-15 * self.plant.drive.f_m:
+            return False
+        z[i] = u
+        return True
 
     @staticmethod
     def _at(data: _ModeData, z: np.ndarray, s: float) -> np.ndarray:
@@ -153,21 +167,16 @@ class LinearEngine:
     def _first_zero(self, data: _ModeData, z: np.ndarray, s_max: float) -> tuple[float, Guard] | None:
         """Earliest zero in (0, s_max] of any guard polynomial, with the guard (None if there is none)."""
         C = (data.Q @ z).reshape(-1, len(data.labels))          # (K+1, n_g): guard i = sum_k C[k, i] s^k
-        fresh = np.abs(C[0]) <= FRESH_TOL * data.scales
-        if s_max == 1.0 and not fresh.any():                     # the common case: one matrix product decides
+        tol = FRESH_TOL * data.scales
+        fresh = np.abs(C[0]) <= tol
+        if fresh.any():   # a guard that starts within round-off of zero fires below -tol (as in settle): no Zeno
+            C[0] = np.where(fresh, C[0] + tol, C[0])              # loop at a tangency
+        if s_max == 1.0:                                         # the common case: one matrix product decides
             V = data.grid_T @ C
             lower = np.minimum(V[:-1], V[1:]) - (data.k2 @ np.abs(C)) * (0.125 / GRID**2)
             if lower.min() > 0.0:
                 return None
-        live = np.ones(C.shape[1], dtype=bool)
-        for i in np.flatnonzero(fresh):
-            q = _strip(C[:, i], data.scales[i])
-            if q is None:
-                live[i] = False                                  # identically ~0: never crosses
-            elif q[0] < 0.0:
-                return 0.0, data.labels[i]                       # wrong assumed direction: switch at once
-            else:
-                C[:, i] = np.concatenate([q, np.zeros(C.shape[0] - q.size)])
+        live = C[0] >= 0.0
         T = data.grid_T if s_max == 1.0 else (np.linspace(0.0, s_max, GRID + 1)[:, None]
                                               ** np.arange(C.shape[0])[None, :])
         V = T @ C
@@ -184,13 +193,6 @@ class LinearEngine:
                         best = (root, data.labels[i])
                     break
         return best
-
-
-def _strip(c: np.ndarray, scale: float) -> np.ndarray | None:
-    """p(s) / s^m for a guard that starts at zero (m leading coefficients negligible); None if all are."""
-    big = np.flatnonzero(np.abs(c) > FRESH_TOL * 1e-3 * scale)
-    big = big[big > 0]
-    return None if big.size == 0 else c[big[0]:].copy()
 
 
 def _poly(q: np.ndarray, s: float) -> float:

@@ -456,3 +456,16 @@ DIAGNOSIS_MATRIX = [(seed, effect, cls, kind, VARIANTS.get(effect, (None,))[i % 
 CLEAN_SUITE = [(5201 + i, DIAGNOSIS_EXCITATIONS[i % 2]) for i in range(20)]
 TWO_EFFECT_SUITE_SEEDS = [5301 + i for i in range(10)]
 OUTSIDE_LIBRARY_SUITE = [(5401 + i, OUTSIDE_LIBRARY_EFFECTS[i % 2]) for i in range(10)]
+
+
+def weak_search(seed: int, effect: str, excitation: str = "default", duration_s: float = DEFAULT_DURATION_S,
+                variant: str | None = None, rate_hz: float | None = None) -> tuple[float, float, int]:
+    """The weak magnitude of ``effect`` in case ``seed``: (magnitude, its signal [rad], simulations the search
+    used). Cached, like the clean run of each case."""
+    return _weak(seed, excitation, duration_s, rate_hz, effect, variant)
+
+
+def clear_caches() -> None:
+    """Forget the cached clean runs and weak magnitudes (e.g. to time a cold start)."""
+    _context.cache_clear()
+    _weak.cache_clear()

@@ -268,6 +268,7 @@ class HybridPlant:
     def __init__(self, drive: Drive, effects: Effects | None = None, track_energy: bool = False) -> None:
         self.drive, self.effects = drive, effects or Effects()
         self.track_energy = track_energy
+        self.mode_changes = 0          # transitions applied so far (events and settle)
         self.frictions = self._frictions()
         self._layout()
         self._rhs_cache: dict[Mode, Callable[[Vector, float], Vector]] = {}
@@ -542,6 +543,7 @@ class HybridPlant:
     def transition(self, x: Vector, u: float, mode: Mode, guard: Guard) -> tuple[Vector, Mode]:
         """The mode after ``guard`` reached zero at ``x`` (the crossed threshold decides the direction, so that a
         root located to round-off never makes the body stick again: no Zeno loop)."""
+        self.mode_changes += 1
         x, new = list(x), list(mode)
         k, i = guard.kind, guard.index
         if k == "stop":
