@@ -314,6 +314,9 @@ def test_written_files_read_back_with_the_product_reader(kind: str, tmp_path: Pa
     assert set(g.sidecar) == set(logs.SIDECAR_KEYS)
     assert log.meta.to_dict() == pytest.approx(g.sidecar)
     assert (tmp_path / "log.truth.json").is_file()
+    assert list(g.to_frame().columns[:4]) == list(g.columns())
+    if kind == "steps":
+        assert g.plot(tmp_path / "log.png").stat().st_size > 0
 
 
 def test_determinism_and_independent_streams() -> None:

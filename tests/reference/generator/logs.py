@@ -29,6 +29,7 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from . import excitations as exc
 from .effects import (
@@ -113,6 +114,36 @@ class GeneratedLog:
     def columns(self) -> dict[str, np.ndarray]:
         return {"time_s": self.time_s, "motor_torque_Nm": self.motor_torque_Nm, "motor_pos_rad": self.motor_pos_rad,
                 "load_pos_rad": self.load_pos_rad}
+
+    def to_frame(self) -> pd.DataFrame:
+        """The measured columns and the true angles (``true_motor_pos_rad``, ``true_load_pos_rad``)."""
+        return pd.DataFrame({**self.columns(), "true_motor_pos_rad": self.true_motor_pos_rad,
+                             "true_load_pos_rad": self.true_load_pos_rad})
+
+    def plot(self, path: str | Path) -> Path:
+        """Torque, encoder and load sensor against time, with the true angles; saved to ``path``."""
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        fig, axes = plt.subplots(3, 1, sharex=True, figsize=(9, 7))
+        axes[0].plot(self.time_s, self.motor_torque_Nm, drawstyle="steps-post")
+        axes[0].set_ylabel("motor torque [N m]")
+        axes[1].plot(self.time_s, self.motor_pos_rad, label="encoder")
+        axes[1].plot(self.time_s, self.true_motor_pos_rad, label="true", lw=0.8)
+        axes[1].set_ylabel("motor angle [rad]")
+        axes[2].plot(self.time_s, self.load_pos_rad - self.truth.offset_rad, label="sensor - offset")
+        axes[2].plot(self.time_s, self.true_load_pos_rad, label="true", lw=0.8)
+        axes[2].set_ylabel("load angle [rad]")
+        axes[2].set_xlabel("time [s]")
+        for ax in axes[1:]:
+            ax.legend(loc="best")
+        t = self.truth
+        fig.suptitle(f"seed {t.seed} {t.scenario}: {t.excitation['kind']}, K* {t.K_star:.3g}, J_l* {t.J_l_star:.3g}, "
+                     f"f_l* {t.f_l_star:.3g}; effects: {', '.join(t.effect_names) or 'none'}")
+        fig.tight_layout()
+        fig.savefig(path)
+        plt.close(fig)
+        return Path(path)
 
     def write(self, directory: str | Path, stem: str = "log", truth: bool = True) -> tuple[Path, Path]:
         """Write ``<stem>.csv`` and its sidecar ``<stem>.json`` (the product's format; numbers with 17 significant

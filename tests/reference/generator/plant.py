@@ -206,7 +206,7 @@ class Effects:
             if value in (None, 0.0):
                 continue
             obj = getattr(self, key)
-            out[key] = {"shape": type(obj).__name__, **value} if isinstance(value, dict) else value
+            out[key] = {"model": type(obj).__name__, **value} if isinstance(value, dict) else value
         return out
 
 
