@@ -306,7 +306,7 @@ def test_sensor_model() -> None:
 
 @pytest.mark.parametrize("kind", exc.KINDS)
 def test_written_files_read_back_with_the_product_reader(kind: str, tmp_path: Path) -> None:
-    """Every excitation's log written in the product's format reads back exactly with ident.io.read_log."""
+    """Every excitation's log written in the product's format reads back exactly with ident.read_log."""
     g = logs.identification_case(4150 + exc.KINDS.index(kind), kind, duration_s=0.6)
     log = read_back(g, tmp_path)
     for name, column in g.columns().items():
