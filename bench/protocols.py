@@ -12,7 +12,7 @@ to the sweep by the number of pulses per amplitude; the Ctrl-C latency (SIGINT t
 run, also in the slowest effects case. Wall times are medians of repeats; CPU times (``time.process_time``) are
 given beside them because the machine is shared: the load average before and after is recorded.
 
-Prints the figures and writes bench/results/protocols.json.
+Prints the figures and writes bench/results/protocols.json (protocols_quick.json with ``--quick``).
 ``python bench/protocols.py [--quick]`` (``--quick``: no paper-effects run, fewer repeats).
 """
 from __future__ import annotations
@@ -35,7 +35,8 @@ sys.path.insert(0, str(ROOT))
 
 from ident import DriveParams, impulse_experiment, impulse_resolution, linear_resolution  # noqa: E402
 from ident.protocols import compiled  # noqa: E402
-from ident.protocols.sweep import friction_sweep  # noqa: E402
+from ident.protocols.batch import run_batch  # noqa: E402
+from ident.protocols.sweep import friction_levels, friction_sweep  # noqa: E402
 from ident.studies.paper_effects import EFFECT_CASES, write_paper_effects  # noqa: E402
 from tests.reference.event_driven import DriveSI, pulse_increments  # noqa: E402
 
@@ -63,6 +64,11 @@ def repeat(fn: Callable[[], Any], n: int) -> dict[str, Any]:
     runs = [timed(fn)[1:] for _ in range(n)]
     return {"wall_s_median": median(r[0] for r in runs), "cpu_s_median": median(r[1] for r in runs),
             "wall_s": [r[0] for r in runs], "cpu_s": [r[1] for r in runs]}
+
+
+def level_task(params: DriveParams) -> Any:
+    """One level of the sweep (compiled loops), as a task for a process cluster."""
+    return impulse_resolution(params, 1000)
 
 
 def time_in_loops(fn: Callable[[], Any]) -> tuple[float, compiled.LoopStats]:
@@ -142,6 +148,8 @@ def bench_sweep(nominal: DriveParams, reps: int) -> dict[str, Any]:
     s["compiled_serial"] = repeat(lambda: friction_sweep(nominal, 25, 1000, workers=0), 1)
     s["python_serial"] = repeat(lambda: friction_sweep(nominal, 25, 1000, workers=0, loop="python"), 1)
     s["python_dask_processes"] = repeat(lambda: friction_sweep(nominal, 25, 1000, loop="python"), 1)
+    tasks = [nominal.with_values(f_l_star=float(f)) for f in friction_levels(25)]
+    s["compiled_dask_processes"] = repeat(lambda: run_batch(level_task, tasks, workers=2), 1)   # cluster start-up
     cpu, stats = time_in_loops(lambda: friction_sweep(nominal, 25, 1000, workers=0))
     s.update(serial_thread_cpu_s=cpu, inside_compiled_loops_s=stats.cpu_s, do_steps=stats.do_steps,
              c_calls=stats.calls)
@@ -155,7 +163,9 @@ def bench_sweep(nominal: DriveParams, reps: int) -> dict[str, Any]:
           f"{best:.2f} s wall ({s['compiled_threads']['cpu_s_median']:.2f} s CPU), serial "
           f"{s['compiled_serial']['wall_s_median']:.2f} s; Python loop serial {s['python_serial']['wall_s_median']:.2f}"
           f" s ({s['ratio_python_serial']:.1f}x), on Dask processes {s['python_dask_processes']['wall_s_median']:.2f}"
-          f" s; {stats.cpu_s / cpu:.0%} of the serial CPU time inside the compiled loops (the FMU's doSteps)")
+          f" s; compiled on a local Dask cluster of 2 processes {s['compiled_dask_processes']['wall_s_median']:.2f} s"
+          f" (start-up included); {stats.cpu_s / cpu:.0%} of the serial CPU time inside the compiled loops (the "
+          f"FMU's doSteps)")
     print(f"reference (event_driven.py, DOP853) estimated {s['reference']['estimated_serial_s']:.0f} s serially "
           f"from {s['reference']['sampled_pulses']} sampled pulses: {s['ratio_reference_serial']:.0f}x; the issue's "
           f"28 s closed-form Python integrator (not in the repository): {s['ratio_issue_reference_28s']:.1f}x",
@@ -194,7 +204,7 @@ def main(quick: bool = False) -> dict[str, Any]:
     if not quick:
         out["paper_effects"] = bench_paper_effects()
     out["machine"]["loadavg_end"] = os.getloadavg()
-    path = ROOT / "bench" / "results" / "protocols.json"
+    path = ROOT / "bench" / "results" / ("protocols_quick.json" if quick else "protocols.json")
     path.parent.mkdir(exist_ok=True)
     path.write_text(json.dumps(out, indent=2, default=float))
     print(f"written {path}")

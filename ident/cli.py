@@ -285,9 +285,9 @@ _BATCH_TASKS = {"sweep": "the friction levels", "study": "the friction levels of
 def _add_batch_options(p: argparse.ArgumentParser) -> None:
     what = _BATCH_TASKS.get(p.prog.split()[-1], "the batch's tasks")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help=f"run {what} on this dask.distributed cluster "
-                   "(default: local worker processes)")
-    p.add_argument("--workers", type=int, help=f"local worker processes for {what} (default: one per core; "
-                   "0 = serial in this process, no Dask)")
+                   "(default: local workers, see --workers)")
+    p.add_argument("--workers", type=int, help=f"local workers for {what}: threads of this process running the "
+                   "compiled protocol loops on Dask (default: one per core; 0 = serial in this process, no Dask)")
 
 
 def _add_build_fmu(sub: Any) -> None:

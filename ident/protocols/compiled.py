@@ -34,10 +34,11 @@ __all__ = ["CHUNK_STEPS", "LOOPS", "LoopStats", "Stopped", "check_loop", "loop_s
            "stopped_by"]
 
 LOOPS = ("compiled", "python")
-# doSteps per call into C between returns to Python (counted work, never time). A closed-form doStep costs 1-3 us,
-# an effects-on (RK4) doStep of a 20 ms rest poll while the load rings up to ~100 us: a chunk is a few ms, at worst
-# ~0.1 s (the Ctrl-C latency, bench/protocols.py), while a return to Python (~2 us) is negligible against it.
-CHUNK_STEPS = 1024
+# doSteps per call into C between returns to Python (counted work, never time). A closed-form doStep costs a few us,
+# an effects-on (RK4) doStep of a 20 ms rest poll while the load rings up to ~0.3 ms (hysteresis at f_l* = 0.01):
+# a chunk is a few ms, at worst ~0.15 s (the Ctrl-C latency, bench/protocols.py), while a return to Python (~5 us)
+# is negligible against it.
+CHUNK_STEPS = 512
 
 _FAIL_SET, _FAIL_STEP, _FAIL_GET, _FAIL_SETTLE = 1, 2, 3, 4
 _DOUBLE_P = ctypes.POINTER(ctypes.c_double)

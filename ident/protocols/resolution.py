@@ -10,8 +10,8 @@ Results are dataclasses with ``.to_frame()`` (pandas, one row per pulse / step),
 All lengths are metres at the arm tip; amplitudes are non-dimensional (tau* = T_m / f_m).
 
 The inner loops (a pulse then rest, N pulses, the median test; the PD until final rest, the set-point steps) run in
-compiled code over the FMU's own functions by default (``loop="compiled"``, ``ident.protocols.compiled``), ~10x
-faster; ``loop="python"`` runs the same protocol through the Python controllers ``ImpulseController`` /
+compiled code over the FMU's own functions by default (``loop="compiled"``, ``ident.protocols.compiled``; 3-13x
+faster, bench/protocols.py); ``loop="python"`` runs the same protocol through the Python controllers ``ImpulseController`` /
 ``LinearPD`` and ``Plant.step``. Both give the same increments, bit for bit.
 """
 from __future__ import annotations
