@@ -33,7 +33,8 @@ def make_log(folder: Path) -> Path:
 
 
 def commands(log: Path, out: Path) -> dict[str, list[str]]:
-    return {"sweep": ["sweep", "--levels", "25", "--pulses", "1000", "--out", str(out)],
+    # N = 20,000: the compiled protocol loops finish the N = 1000 sweep within a few seconds, before the signal
+    return {"sweep": ["sweep", "--levels", "25", "--pulses", "20000", "--out", str(out)],
             "study": ["study", "--out", str(out)],
             "identify": ["identify", str(log), "--json"],
             "predict": ["predict", str(log), "--json"],

@@ -93,7 +93,7 @@ def test_interrupting_a_sweep_leaves_nothing_behind(tmp_path, sig, code, word) -
     """Ctrl-C / SIGTERM during a sweep (compiled protocol loops on Dask threads in the process): exit 130 / 143 with
     one line, no output folder, no staging folder, and no temporary folder (unpacked FMUs) in a private TMPDIR. N =
     20,000 pulses: the compiled sweep at N = 1000 may end before the signal arrives. How fast it stops is measured in
-    bench/protocols.py, not here."""
+    bench/interrupts.py and bench/protocols.py, not here."""
     tmp = tmp_path / "tmp"
     tmp.mkdir()
     out = tmp_path / "sweep"

@@ -131,7 +131,7 @@ _LOADING = threading.Lock()
 def _lib() -> ctypes.CDLL:
     """``c/runner.c`` + ``c/protocols.c``, built (``fmu_build.build.build_runner``) and loaded once per process."""
     global _LIB
-    with _LOADING:   # threads of a batch: one build (its staging file is per process) and one load
+    with _LOADING:   # the threads of a batch: one build and one load per process
         if _LIB is None:
             from fmu_build.build import build_runner
 

@@ -23,7 +23,6 @@ from ..model.plant import Plant
 __all__ = ["pooled_plant"]
 
 _LOCAL = threading.local()
-_BUILDING = threading.Lock()
 _ZERO_STATE = dict(q_m_start=0.0, q_l_start=0.0, v_m_start=0.0, v_l_start=0.0)
 
 
@@ -31,8 +30,7 @@ _ZERO_STATE = dict(q_m_start=0.0, q_l_start=0.0, v_m_start=0.0, v_l_start=0.0)
 def pooled_plant(params: DriveParams, fmi_version: int) -> Iterator[Plant]:
     """This thread's Plant of the default FMU of ``fmi_version``, reset to ``params`` at rest with zero
     deflection (a new one if the pool has none)."""
-    with _BUILDING:   # the FMU cache stages a build under a per-process name: one builder per process
-        path = default_fmu_path(fmi_version)   # keyed by path: a rebuilt FMU (changed sources) is a new plant
+    path = default_fmu_path(fmi_version)   # keyed by path: a rebuilt FMU (changed sources) is a new plant
     plants: dict = _LOCAL.__dict__.setdefault("plants", {})
     plant = plants.pop(path, None)
     if plant is None:
