@@ -12,7 +12,7 @@ to the sweep by the number of pulses per amplitude; the Ctrl-C latency (SIGINT t
 run, also in the slowest effects case. Wall times are medians of repeats; CPU times (``time.process_time``) are
 given beside them because the machine is shared: the load average before and after is recorded.
 
-Prints the figures and writes bench/results/protocols.json (protocols_quick.json with ``--quick``).
+Prints the figures and writes bench/results/protocols.json (protocols_quick.json with ``--quick``, not kept).
 ``python bench/protocols.py [--quick]`` (``--quick``: no paper-effects run, fewer repeats).
 """
 from __future__ import annotations
