@@ -102,7 +102,9 @@ def dominant_frequency(segments: list[np.ndarray], rate_hz: float) -> float:
     k = band[np.argmax(spec[band])]
     if 0 < k < spec.size - 1:  # parabolic interpolation of the log-spectrum around the peak bin
         a, b, c = np.log(spec[k - 1:k + 2] + 1e-300)
-        k = k + 0.5 * (a - c) / (a - 2 * b + c)
+        curvature = a - 2 * b + c
+        if curvature < 0:  # a true maximum; a flat spectrum (all-zero segments) keeps the bin
+            k = k + 0.5 * (a - c) / curvature
     return float(k * rate_hz / x.size)
 
 
