@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from typing import Any, Sequence
 
@@ -123,7 +124,7 @@ def _identified(args: argparse.Namespace) -> tuple[object, dict]:
     from .fitting.identify import identify
 
     log = _read(args)
-    fit = identify(log, model=args.model, progress=not args.json)
+    fit = identify(log, model=args.model, progress=True, verbose=getattr(args, "verbose", False))
     if args.model == "rigid":
         from .fitting.rigid import rigid_warnings
 
@@ -135,10 +136,42 @@ def _identified(args: argparse.Namespace) -> tuple[object, dict]:
                    warnings=rigid_warnings(fit),
                    covariance="ci95: residual-based (Newey-West) sandwich; ci95_ls: noise-only LS")
         return fit, out
+    if not fit.identifiable:
+        args.exit_code = EXIT_NOT_IDENTIFIABLE
     return fit, fit.to_dict()
 
 
-def cmd_identify(args: argparse.Namespace) -> dict:
+def _print_fit(out: dict) -> None:
+    """The fit as text: values with intervals, the identifiability verdict, the noise, data checks, warnings."""
+    for name, v in out.items():
+        if isinstance(v, dict) and "ci95" in v:
+            if v["value"] is None:
+                line = f"{name:10s} no result"
+            else:
+                line = f"{name:10s} {v['value']:.6g}  95 % [{v['ci95'][0]:.6g}, {v['ci95'][1]:.6g}]"
+            print(line + ("" if v.get("identifiable", True) else "  NOT IDENTIFIABLE: " + v["reason"]))
+    if "identifiable" in out:
+        print("identifiable: " + ("yes, all three" if out["identifiable"] else "NO") +
+              (f" -- to fix: {out['fix']}" if out.get("fix") else ""))
+        print(f"load sensor noise: {out['sigma_load_rad']:.4g} rad; residual "
+              f"{out['fit']['residual_over_noise']:.3f}x the noise")
+    for c in out.get("data_checks", []):
+        if c["status"] != "ok":
+            print(f"data check {c['check']}: {c['status']}: {c['detail']}")
+    for w in out["warnings"]:
+        print(f"warning: {w}")
+
+
+def _single_log(args: argparse.Namespace) -> bool:
+    from pathlib import Path
+
+    return len(args.logs) == 1 and not Path(args.logs[0]).is_dir()
+
+
+def cmd_identify(args: argparse.Namespace) -> Any:
+    if not _single_log(args):
+        return _identify_many(args)
+    args.log = args.logs[0]
     fit, out = _identified(args)
     if args.out and args.model != "rigid":
         from pathlib import Path
@@ -146,13 +179,30 @@ def cmd_identify(args: argparse.Namespace) -> dict:
         Path(args.out).mkdir(parents=True, exist_ok=True)
         out["png"] = str(fit.plot(Path(args.out) / "identify.png"))
     if not args.json:
-        for name, v in out.items():
-            if isinstance(v, dict) and "ci95" in v:
-                print(f"{name:10s} {v['value']:.6g}  95 % [{v['ci95'][0]:.6g}, {v['ci95'][1]:.6g}]")
-        print(f"fit: {out['fit']}")
-        for w in out["warnings"]:
-            print(f"warning: {w}")
+        _print_fit(out)
     return out
+
+
+def _identify_many(args: argparse.Namespace) -> Any:
+    """Several logs or folders: one row per log on Dask, a table (CSV + JSON) in ``--out``."""
+    from .fitting.batch import collect_logs, identify_many, write_table
+
+    if args.model != "two-inertia":
+        raise ValueError("several logs at once: only the two-inertia model (--model two-inertia)")
+    if not args.out:
+        raise ValueError("several logs at once: give --out DIR for the table (identify.csv, identify.json)")
+    paths = collect_logs(args.logs)
+    table = identify_many(paths, args.meta, scheduler=args.scheduler, workers=args.workers, progress=True)
+    files = write_table(table, args.out)
+    if not table["identifiable"].all():
+        args.exit_code = EXIT_NOT_IDENTIFIABLE
+    if not args.json:
+        cols = ["log", "status", "identifiable", "K_star", "J_l_star", "f_l_star"]
+        print(table[cols].to_string(index=False))
+        print(f"wrote {files['csv']} and {files['json']}")
+    import json as _json
+
+    return {"logs": _json.loads(table.to_json(orient="records")), **files}
 
 
 def cmd_predict(args: argparse.Namespace) -> dict:
@@ -161,13 +211,22 @@ def cmd_predict(args: argparse.Namespace) -> dict:
     if args.model != "two-inertia":
         raise ValueError("prediction needs the two-inertia model (K*, J_l*, f_l*): a load sensor in the log")
     fit, out = _identified(args)
+    if not fit.identifiable:
+        out["prediction"] = None
+        out["refused"] = ("no prediction: the log does not identify all three parameters (see their reasons); "
+                          "a resolution from unidentified parameters would be a guess")
+        if not args.json:
+            _print_fit(out)
+            print(out["refused"])
+        return out
     pred = predict(fit, n_draws=args.draws, n_pulses=args.pulses, n_steps=args.steps, workers=args.workers,
-                   scheduler=args.scheduler, progress=not args.json)
+                   scheduler=args.scheduler, progress=True)
     out.update(pred.to_dict())
     if not args.json:
+        _print_fit(out)
         print(f"impulse resolution {pred.impulse_resolution_um:.4f} um (95 % {pred.impulse_ci95_um[0]:.4f} - "
               f"{pred.impulse_ci95_um[1]:.4f}); linear {pred.linear_resolution_um:.3f} um "
-              f"({pred.linear_counts} counts)")
+              f"(95 % {pred.linear_ci95_um[0]:.3f} - {pred.linear_ci95_um[1]:.3f}; {pred.linear_counts} counts)")
     return out
 
 
@@ -292,15 +351,29 @@ def _add_study(sub: Any) -> None:
 
 
 def _add_identify(sub: Any) -> None:
-    p = sub.add_parser("identify", help="estimate the drive's parameters from a log (CasADi + IPOPT, exact model)")
-    _add_log_options(p)
-    p.add_argument("--out", help="also write a plot of measured vs fitted load angle here")
+    p = sub.add_parser("identify", help="estimate the drive's parameters from a log (CasADi + IPOPT, exact model); "
+                       "several logs or folders: one table, on Dask",
+                       epilog="exit codes: 0 identified; 3 a parameter is not identifiable from the log (the JSON "
+                              "says which and why); 2 bad input; 130 interrupted")
+    p.add_argument("logs", nargs="+", metavar="LOG",
+                   help="log file(s) (CSV or Parquet with a JSON sidecar, physics.md section 4, or EMPS .mat) or "
+                        "folders of logs")
+    p.add_argument("--meta", help="JSON sidecar (default: LOG.json or meta.json beside it)")
+    p.add_argument("--model", choices=("two-inertia", "rigid"), default="two-inertia")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--verbose", action="store_true", help="also show IPOPT's own output")
+    p.add_argument("--out", help="one log: also write a plot of measured vs fitted load angle here; several: the "
+                                 "table identify.csv / identify.json (required)")
+    _add_batch_options(p)
     p.set_defaults(func=cmd_identify)
 
 
 def _add_predict(sub: Any) -> None:
-    p = sub.add_parser("predict", help="identify, then predict impulse and linear resolution with 95 %% intervals")
+    p = sub.add_parser("predict", help="identify, then predict impulse and linear resolution with 95 %% intervals",
+                       epilog="exit codes: 0 predicted; 3 refused: a parameter is not identifiable from the log; "
+                              "2 bad input; 130 interrupted")
     _add_log_options(p)
+    p.add_argument("--verbose", action="store_true", help="also show IPOPT's own output")
     p.add_argument("--draws", type=int, default=20, help="parameter draws for the interval (default 20)")
     p.add_argument("--pulses", type=int, default=1000, help="pulses per impulse experiment (default 1000)")
     p.add_argument("--steps", type=int, default=1000, help="measured PD steps (default 1000)")
@@ -352,16 +425,43 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+EXIT_BAD_INPUT = 2
+EXIT_NOT_IDENTIFIABLE = 3
+EXIT_INTERRUPTED = 130
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         result = args.func(args)
+    except KeyboardInterrupt:
+        print(f"hdrive {args.command}: interrupted", file=sys.stderr)
+        if argv is None:  # the command line: everything open was closed on the way out (FMU folders, staged
+            # files); skip the interpreter's teardown of numpy, pandas, CasADi (seconds on a loaded machine)
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(EXIT_INTERRUPTED)
+        return EXIT_INTERRUPTED
     except (ParameterError, ValueError, ThresholdNotFound, NoConsistentStep, SettleError, RuntimeError) as exc:
         print(f"hdrive {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        checks = getattr(exc, "checks", None)
+        if getattr(args, "json", False) and checks is not None:
+            print(json.dumps({"error": str(exc), "data_checks": checks}, indent=2))
+        return EXIT_BAD_INPUT
     if args.json:
-        print(json.dumps(result, indent=2))
-    return 0
+        print(json.dumps(result, indent=2, default=_json_default))
+    return getattr(args, "exit_code", 0)
+
+
+def _json_default(value: Any) -> Any:
+    """numpy scalars and arrays in results (e.g. the start's numbers) as plain JSON."""
+    import numpy as np
+
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON serializable")
 
 
 if __name__ == "__main__":

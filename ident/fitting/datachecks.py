@@ -9,14 +9,15 @@ check before anything is fitted.
   whole number of counts (the column's zero may sit anywhere). A change off the grid by more than
   ``COUNT_TOLERANCE`` of a count (plus what a column printed with 10 significant digits can lose) is an error; steps
   that are all multiples of k > 1 counts are a warning (``encoder_counts_per_rev`` k times too large?).
-- ``gear_ratio`` and ``load_sensor``: at rests (runs of a constant encoder count, the load's median over their last
-  quarter), the load must travel r times the motor: rest positions obey q_l = r q_m - d + offset with d inside the
-  static band, which does not grow with the travel. A least-squares slope s of load on motor rest positions, with its
-  standard error, is compared with r: consistent when within ``RATIO_TOLERANCE`` (1 %: one tooth on a 100:1 drive) or
-  three standard errors. Otherwise the ratio s/r is matched against the usual unit and sign mistakes of the load
+- ``gear_ratio`` and ``load_sensor``: over the motor's standstills (runs of a constant encoder count, the load's
+  mean over each), the load must travel r times the motor: there q_l = r q_m - d + offset with the deflection d
+  bounded (the spring's), not growing with the travel. A least-squares slope s of load on motor rest positions, with its
+  standard error (at least a third of what the rests' deflection spread, ~4 standard deviations, could fake over the
+  motor's travel), is compared with r: consistent when within ``RATIO_TOLERANCE`` (1 %: one tooth on a 100:1 drive)
+  or three standard errors. Otherwise the ratio s/r is matched against the usual unit and sign mistakes of the load
   column (degrees, milliradians, microradians, arc-seconds, metres or micrometres at the arm tip, the motor side,
   each with either sign): a match names it, no match is a gear-ratio error naming both numbers. With too little
-  motor travel between rests to decide (standard error above ``DECIDABLE`` of r, or fewer than ``MIN_RESTS`` rests)
+  motor travel between rests to decide (standard error above ``DECIDABLE`` of r, or fewer than ``MIN_STANDSTILLS`` rests)
   the check is skipped.
 """
 from __future__ import annotations
@@ -31,8 +32,8 @@ from .logs import DriveLog, LogError, check_sample_rate
 COUNT_TOLERANCE = 0.01
 RATIO_TOLERANCE = 0.01
 DECIDABLE = 0.05
-MIN_RESTS = 4
-REST_SAMPLES = 8
+MIN_STANDSTILLS = 4
+REST_SAMPLES = 16
 
 
 def _status(check: str, status: str, detail: str, **values: Any) -> dict[str, Any]:
@@ -77,18 +78,17 @@ def check_encoder(log: DriveLog) -> dict[str, Any]:
 
 
 def rest_positions(log: DriveLog) -> tuple[np.ndarray, np.ndarray]:
-    """(motor, load) positions at rests: runs of a constant encoder count of at least ``REST_SAMPLES`` samples,
-    the load's median over each run's last quarter."""
+    """(motor, load) positions over the runs of a constant encoder count of at least ``REST_SAMPLES`` samples: the
+    count, and the load's mean over the run (a load still ringing averages towards its centre). The motor stands
+    still over a run, so the deflection r q_m - q_l there is the spring's, bounded; a slow slide inside one count
+    adds the load's lag, which is bounded too and enters the tolerance through the points' spread."""
     cpr = log.meta.encoder_counts_per_rev or 2 ** 20
     counts = np.round(log.motor_pos_rad / (2 * math.pi / cpr)).astype(np.int64)
     change = np.flatnonzero(np.diff(counts) != 0) + 1
     edges = np.concatenate([[0], change, [counts.size]])
-    qm, ql = [], []
-    for a, b in zip(edges[:-1], edges[1:]):
-        if b - a >= REST_SAMPLES:
-            qm.append(log.motor_pos_rad[a])
-            ql.append(float(np.median(log.load_pos_rad[b - (b - a) // 4 - 1:b])))
-    return np.array(qm), np.array(ql)
+    keep = [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b - a >= REST_SAMPLES]
+    return (np.array([log.motor_pos_rad[a] for a, _ in keep]),
+            np.array([float(np.mean(log.load_pos_rad[a:b])) for a, b in keep]))
 
 
 def _unit_factors(log: DriveLog) -> dict[str, float]:
@@ -110,18 +110,19 @@ def check_travel(log: DriveLog) -> list[dict[str, Any]]:
     if log.load_pos_rad is None:
         return [_status("gear_ratio", "skipped", "no load sensor"), _status("load_sensor", "skipped", "no load sensor")]
     qm, ql = rest_positions(log)
-    if qm.size < MIN_RESTS or np.ptp(qm) == 0:
-        why = f"only {qm.size} rest(s) of the motor: the load's travel cannot be compared with the motor's"
+    if qm.size < MIN_STANDSTILLS or np.ptp(qm) == 0:
+        why = f"only {qm.size} standstill(s) of the motor: the load's travel cannot be compared with the motor's"
         return [_status("gear_ratio", "skipped", why), _status("load_sensor", "skipped", why)]
     x = qm - qm.mean()
     s = float(x @ (ql - ql.mean()) / (x @ x))
     e = ql - ql.mean() - s * x
     se = float(np.sqrt(e @ e / max(qm.size - 2, 1) / (x @ x)))
-    k, se_k = s / r, se / abs(r)
-    values = {"ratio_over_r": k, "ratio_std_over_r": se_k, "rests": int(qm.size),
+    # the standstills' deflections (bounded) could fake at most their spread (~4 std) over the travel
+    k, se_k = s / r, max(se, 4 * float(np.std(e)) / float(np.ptp(qm)) / 3) / abs(r)
+    values = {"ratio_over_r": k, "ratio_std_over_r": se_k, "standstills": int(qm.size),
               "motor_travel_rad": float(np.ptp(qm))}
     if abs(k - 1) <= max(RATIO_TOLERANCE, 3 * se_k):
-        detail = (f"load/motor travel {s:.6g} = {k:.4f} x r (+-{se_k:.2g}) over {qm.size} rests spanning "
+        detail = (f"load/motor travel {s:.6g} = {k:.4f} x r (+-{se_k:.2g}) over {qm.size} motor standstills spanning "
                   f"{np.ptp(qm) / (2 * math.pi):.3g} motor revolutions")
         return [_status("gear_ratio", "ok", detail, **values), _status("load_sensor", "ok", "unit and sign "
                                                                          "consistent with the gear ratio")]
@@ -131,13 +132,13 @@ def check_travel(log: DriveLog) -> list[dict[str, Any]]:
 def _travel_mismatch(log: DriveLog, s: float, k: float, se_k: float, qm: np.ndarray, values: dict[str, Any]
                      ) -> list[dict[str, Any]]:
     r = log.meta.r
-    where = (f"{log.source}: over {qm.size} rests spanning {np.ptp(qm) / (2 * math.pi):.3g} motor revolutions the "
+    where = (f"{log.source}: over {qm.size} motor standstills spanning {np.ptp(qm) / (2 * math.pi):.3g} motor revolutions the "
              f"load travels {s:.6g} rad per motor rad = {k:.4g} x the sidecar's r = {r:.6g}")
     for what, f in _unit_factors(log).items():
         if abs(k / f - 1) <= max(RATIO_TOLERANCE, 3 * se_k / abs(f)):
             return [_status("gear_ratio", "skipped", "the load sensor's unit or sign is off (see load_sensor)"),
-                    _status("load_sensor", "error", f"{where}: column load_pos_rad looks {what} (factor {f:.6g}); "
-                            "convert it to load-side radians, positive with the motor", factor=f, **values)]
+                    _status("load_sensor", "error", f"{where}: column load_pos_rad looks {what} (factor {f:.6g}; or the sidecar's r is off by "
+                            "that factor); convert it to load-side radians, positive with the motor", factor=f, **values)]
     if se_k > DECIDABLE:
         why = f"too little motor travel between rests to check (ratio {k:.3g} +- {se_k:.2g} x r)"
         return [_status("gear_ratio", "skipped", why, **values), _status("load_sensor", "skipped", why)]

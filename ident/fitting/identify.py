@@ -32,10 +32,14 @@ Method (the exact model inside the fit, never a smoothed copy):
 from __future__ import annotations
 
 import math
+import os
+import signal
 import sys
+import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
@@ -57,7 +61,7 @@ REJECT_CHI2 = 18.467
 # on the next window: the second-order term of the residual at most LINEARITY of the first-order one (Gauss-Newton
 # then converges from anywhere in that region) -- or below one noise unit altogether.
 K_SIGMA = 3.0
-LINEARITY = 0.25
+LINEARITY = 0.1
 
 
 class IdentificationError(RuntimeError):
@@ -126,6 +130,8 @@ class OutputError:
         return max(residual_noise_std(self.residuals(theta)[: self.y_l.size]) * self.sigma_l, 1e-15)
 
     def residuals(self, theta: np.ndarray) -> np.ndarray:
+        if getattr(self, "interrupted", False):  # Ctrl-C while IPOPT runs (``_sigint_flag``): no more simulations
+            raise KeyboardInterrupt
         key = np.asarray(theta, dtype=float).tobytes()
         if key not in self._cache:
             self.check_time()
@@ -188,17 +194,65 @@ class OutputError:
         self.plant.close()
 
 
-def _guarded(problem: OutputError, fn: Callable[[np.ndarray], np.ndarray], arg: Any) -> np.ndarray:
+def _guarded(problem: OutputError, fn: Callable[[np.ndarray], np.ndarray], arg: Any, shape: tuple[int, ...]
+             ) -> np.ndarray:
     """``fn(arg)`` inside a CasADi callback. CasADi turns an exception raised there into an evaluation error that
-    IPOPT answers by stepping back and carrying on, so a Ctrl-C (KeyboardInterrupt) would be swallowed: it is
-    recorded on ``problem`` and every later evaluation fails at once, IPOPT stops, and ``fit_ipopt`` re-raises it."""
-    if problem.interrupted:
-        raise RuntimeError("interrupted")
-    try:
-        return fn(np.array(arg).ravel())
-    except KeyboardInterrupt:
+    IPOPT answers by stepping back and carrying on, so a Ctrl-C (KeyboardInterrupt) would be swallowed. Once it
+    arrived (``problem.interrupted``), every evaluation returns zeros at once -- no simulation, no error: the
+    line search accepts the step, the iteration ends, the iteration callback (``_stop_callback``) stops IPOPT, and
+    ``fit_ipopt`` raises KeyboardInterrupt (failing evaluations instead kept IPOPT backtracking and restoring for
+    1.5 s, printing a traceback each)."""
+    if not problem.interrupted:
+        try:
+            return fn(np.array(arg).ravel())
+        except KeyboardInterrupt:
+            problem.interrupted = True
+    return np.zeros(shape)
+
+
+def _stop_callback(problem: OutputError, n: int) -> Any:
+    """IPOPT's iteration callback: stop (``User_Requested_Stop``) once ``problem.interrupted``."""
+    import casadi as ca
+
+    class Stop(ca.Callback):
+        def __init__(self) -> None:
+            ca.Callback.__init__(self)
+            self.construct("stop_on_interrupt", {})
+
+        def get_n_in(self): return ca.nlpsol_n_out()
+        def get_n_out(self): return 1
+        def get_name_in(self, i): return ca.nlpsol_out(i)
+        def get_name_out(self, i): return "ret"
+
+        def get_sparsity_in(self, i):
+            name = ca.nlpsol_out(i)
+            return (ca.Sparsity.dense(1) if name == "f" else ca.Sparsity.dense(n) if name in ("x", "lam_x")
+                    else ca.Sparsity(0, 0))
+
+        def eval(self, arg): return [1 if problem.interrupted else 0]
+
+    return Stop()
+
+
+@contextmanager
+def _sigint_flag(problem: OutputError) -> Iterator[None]:
+    """While IPOPT runs, Ctrl-C (SIGINT) only sets ``problem.interrupted``: Python would raise KeyboardInterrupt at
+    whatever Python line runs next, which inside CasADi's own callback glue (outside ``_guarded``) IPOPT takes for a
+    failed evaluation and carries on (measured: a Ctrl-C swallowed, the fit finished 17 s later). The flag stops the
+    next simulation (``OutputError.residuals``) and ``fit_ipopt`` raises KeyboardInterrupt once IPOPT returns.
+    Outside the main thread (Dask workers) signals are not ours to handle: nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def flag(signum: int, frame: Any) -> None:
         problem.interrupted = True
-        raise
+
+    previous = signal.signal(signal.SIGINT, flag)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _residual_callback(problem: OutputError, n: int, m: int) -> Any:
@@ -215,7 +269,7 @@ def _residual_callback(problem: OutputError, n: int, m: int) -> Any:
         def get_n_out(self): return 1
         def get_sparsity_in(self, i): return ca.Sparsity.dense(n, 1) if i == 0 else ca.Sparsity.dense(m, 1)
         def get_sparsity_out(self, i): return ca.Sparsity.dense(m, n)
-        def eval(self, arg): return [_guarded(problem, problem.jacobian, arg[0])]
+        def eval(self, arg): return [_guarded(problem, problem.jacobian, arg[0], (m, n))]
 
     class Res(ca.Callback):
         def __init__(self, name: str):
@@ -226,7 +280,7 @@ def _residual_callback(problem: OutputError, n: int, m: int) -> Any:
         def get_n_out(self): return 1
         def get_sparsity_in(self, i): return ca.Sparsity.dense(n, 1)
         def get_sparsity_out(self, i): return ca.Sparsity.dense(m, 1)
-        def eval(self, arg): return [_guarded(problem, problem.residuals, arg[0])]
+        def eval(self, arg): return [_guarded(problem, problem.residuals, arg[0], (m,))]
         def has_jacobian(self): return True
 
         def get_jacobian(self, name, inames, onames, opts):
@@ -237,8 +291,8 @@ def _residual_callback(problem: OutputError, n: int, m: int) -> Any:
     return Res("fmu_residuals")
 
 
-def _gauss_newton_solver(res: Any, n: int, m: int, max_iter: int, max_cpu_time: float, verbose: bool = False
-                         ) -> Any:
+def _gauss_newton_solver(res: Any, n: int, m: int, max_iter: int, max_cpu_time: float, verbose: bool = False,
+                         stop: Any = None) -> Any:
     """IPOPT on 0.5 |r(theta)|^2 / m with the Gauss-Newton Hessian J^T J / m (r: the callback ``res``)."""
     import casadi as ca
 
@@ -250,6 +304,7 @@ def _gauss_newton_solver(res: Any, n: int, m: int, max_iter: int, max_cpu_time: 
     hess = ca.Function("nlp_hess_l", [x, p, lam_f, lam_g], [ca.triu(lam_f * ca.mtimes(jr.T, jr) / m)])
     return ca.nlpsol("output_error", "ipopt", {"x": x, "f": f},
                      {"hess_lag": hess, "print_time": verbose, "verbose_init": False,
+                      **({"iteration_callback": stop} if stop is not None else {}),
                       # The exact model's cost has micro-steps where a marginal stick/slip decision flips (a
                       # 1e-6 relative change of a parameter can reorder one event): stop once the objective no
                       # longer changes rather than insisting on a gradient below the finite-difference noise:
@@ -272,9 +327,12 @@ def fit_ipopt(problem: OutputError, theta0: np.ndarray, lower: np.ndarray, upper
     raised again here."""
     n, m = theta0.size, problem.residuals(theta0).size
     res = _residual_callback(problem, n, m)
-    solver = _gauss_newton_solver(res, n, m, max_iter, max_cpu_time, getattr(problem, "verbose", False))
+    verbose = getattr(problem, "verbose", False)
+    stop = _stop_callback(problem, n)
+    solver = _gauss_newton_solver(res, n, m, max_iter, max_cpu_time, verbose, stop)
     try:
-        sol = solver(x0=theta0, lbx=lower, ubx=upper)
+        with c_stdout(to_stderr=verbose), _sigint_flag(problem):
+            sol = solver(x0=theta0, lbx=lower, ubx=upper)
     except RuntimeError:  # CasADi wraps an exception raised in a callback: say so if it was Ctrl-C or the deadline
         _reraise_interrupt(problem)
         problem.check_time()
@@ -285,6 +343,24 @@ def fit_ipopt(problem: OutputError, theta0: np.ndarray, lower: np.ndarray, upper
     stats = solver.stats()
     return np.array(sol["x"]).ravel(), {"status": stats["return_status"], "iterations": stats["iter_count"],
                                         "cost": float(sol["f"])}
+
+
+@contextmanager
+def c_stdout(to_stderr: bool) -> Iterator[None]:
+    """Where the C libraries' (IPOPT's, CasADi's) standard output goes while inside the block: to stderr (verbose:
+    the user sees IPOPT's iterations without breaking ``--json`` on stdout) or nowhere. Python's own ``print`` is
+    unaffected outside the block; nothing in the solver's callbacks prints."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    target = os.dup(2) if to_stderr else os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(target, 1)
+        yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(target)
 
 
 def _reraise_interrupt(problem: OutputError) -> None:
@@ -390,15 +466,20 @@ def fit_tracks(log: DriveLog, base: DriveParams, make: Callable[..., OutputError
     rows in units of the final noise estimate; the start; the stages)."""
     start = _start(log, base)
     sigma = start["sigma_start_rad"]
-    stop = _first_window(log, sigma, min(start["candidates_hz"]), first_window_periods)
-    say(progress, f"  start: ringing {start['f_peak_hz']:.4g} Hz from {start['segments']} free-ringing segment(s)"
-        f"{'' if start['consistent'] else ' (not trusted: scanning ' + str(len(start['candidates_hz'])) + ' frequencies)'}")
+    say(progress, f"  start: " + (f"ringing {start['f_peak_hz']:.4g} Hz from {start['segments']} free-ringing "
+                                  "segment(s)" if start["frequency_trusted"] else
+                                  f"no free ringing: scanning {len(start['candidates_hz'])} spectral peaks"))
     stages: list[dict[str, Any]] = []
-    tracks, sigma = _first_stage(log, base, start, stop, sigma, max_iter, make, extra, verbose, stages)
+    tracks, sigma, stop = _first_stage(log, base, start, first_window_periods, sigma, max_iter, make, extra,
+                                       verbose, stages)
     _say_stage(progress, stages[-1], len(tracks))
     problem, tracks = _continuation(log, base, start, tracks, sigma, stages, stop, growth, stage_iter, max_iter,
                                     progress, make, verbose)
-    return _rescue(problem, tracks, stages, stage_iter, progress), problem, start, stages
+    try:
+        return _rescue(problem, tracks, stages, stage_iter, progress), problem, start, stages
+    except BaseException:
+        problem.close()
+        raise
 
 
 def fit_pipeline(log: DriveLog, base: DriveParams, make: Callable[..., OutputError], extra: np.ndarray, *,
@@ -415,27 +496,26 @@ def fit_pipeline(log: DriveLog, base: DriveParams, make: Callable[..., OutputErr
     return problem, tracks[0].theta, problem.sigma_l, start, stages
 
 
-def _grid(base: DriveParams, start: dict[str, Any], extras: np.ndarray, lo: np.ndarray, hi: np.ndarray
-          ) -> list[np.ndarray]:
+def _grid(base: DriveParams, start: dict[str, Any], f_hz: float, extras: np.ndarray, lo: np.ndarray,
+          hi: np.ndarray) -> list[np.ndarray]:
     """The first window's grid: J_l* over 50..5e4 (the physical box's 10..1e6 narrowed to where drives are built,
-    two decades around the nominal 2500, 25 points), the frequency from the start (+-3 %: its accuracy) and the
-    friction around the start's decay (x1/3..3: its accuracy on the measured logs). When the start is not trusted,
-    each candidate frequency is tried both as the locked-motor ringing w_l and as the coupled mode
-    w_l sqrt(1 + r^2 J_l*) (the motor swinging too), and f_l* over 1e-3..10 in factors of sqrt(10)."""
+    two decades around the nominal 2500, 25 points), the frequency ``f_hz`` (from free ringing: +-3 %, its
+    accuracy; a candidate of the whole log's spectrum: tried both as the locked-motor ringing w_l and as the coupled
+    mode w_l sqrt(1 + r^2 J_l*), the motor swinging too) and the friction around the start's decay (x1/3..3: its
+    accuracy on the measured logs) or, without a trusted decay, f_l* over 1e-3..10 in factors of sqrt(10)."""
     pts = []
-    trusted = bool(start["consistent"])
+    trusted, decay = bool(start["frequency_trusted"]), bool(start["consistent"])
     for row in extras:
-        for f_hz in start["candidates_hz"]:
-            w2 = (2 * math.pi * f_hz) ** 2
-            for J in np.geomspace(50.0, 5e4, 25):
-                if trusted:
-                    freqs = (0.97, 1.0, 1.03) if len(extras) == 1 else (1.0,)
-                    combos = [(w2 * wm, start["f_l_over_J_l"] * fm) for wm in freqs
-                              for fm in np.geomspace(1 / 3, 3, 7)]
-                else:
-                    combos = [(w, fl * base.f_m / (J * base.J_m)) for w in (w2, w2 / (1 + base.r ** 2 * J))
-                              for fl in np.geomspace(1e-3, 10.0, 9)]
-                pts += [np.clip(np.concatenate([_theta(base, J, w, fj), row]), lo, hi) for w, fj in combos]
+        w2 = (2 * math.pi * f_hz) ** 2
+        for J in np.geomspace(50.0, 5e4, 25):
+            frictions = (start["f_l_over_J_l"] * np.geomspace(1 / 3, 3, 7) if decay else
+                         np.geomspace(1e-3, 10.0, 9) * base.f_m / (J * base.J_m))
+            if trusted:
+                freqs = (0.97, 1.0, 1.03) if len(extras) == 1 else (1.0,)
+                combos = [(w2 * wm, fj) for wm in freqs for fj in frictions]
+            else:
+                combos = [(w, fj) for w in (w2, w2 / (1 + base.r ** 2 * J)) for fj in frictions]
+            pts += [np.clip(np.concatenate([_theta(base, J, w, fj), row]), lo, hi) for w, fj in combos]
     return pts
 
 
@@ -450,22 +530,45 @@ def _distinct_best(grid: list[tuple[float, np.ndarray]], count: int) -> list[np.
     return chosen
 
 
-def _first_stage(log: DriveLog, base: DriveParams, start: dict[str, Any], stop: int, sigma: float, max_iter: int,
-                 make: Callable[..., OutputError], extra: np.ndarray, verbose: bool, stages: list[dict[str, Any]]
-                 ) -> tuple[list[Track], float]:
-    """The first window: grid (``_grid``), IPOPT from the three best distinct grid points, the optima kept as
-    tracks unless the data reject them. Records the grid's best point in ``start``."""
+def _best_candidate_grid(log: DriveLog, base: DriveParams, start: dict[str, Any], sigma: float,
+                         make: Callable[..., OutputError], extras: np.ndarray, periods: float
+                         ) -> tuple[list[tuple[float, np.ndarray]], int]:
+    """The grid (``_grid``) of each candidate frequency on its own first window (``_first_window``); the candidate
+    whose best point explains its window best (mean squared residual per sample) wins: (its grid, its window)."""
+    best: tuple[float, list[tuple[float, np.ndarray]], int] | None = None
+    for f_hz in start["candidates_hz"]:
+        stop = _first_window(log, sigma, f_hz, periods)
+        problem = make(log, base, stop, sigma)
+        try:
+            lo, hi = problem.bounds()
+            grid = []
+            for th in _grid(base, start, f_hz, extras, lo, hi):
+                grid.append((problem.cost(th), th))
+                problem.clear_cache()
+        finally:
+            problem.close()
+        grid = [g for g in grid if math.isfinite(g[0])]
+        score = min(g[0] for g in grid) / stop if grid else math.inf
+        if grid and (best is None or score < best[0]):
+            best = (score, grid, stop)
+            start["f_peak_hz"] = f_hz
+    if best is None:
+        raise IdentificationError("the FMU cannot simulate any start of the first window's grid")
+    return best[1], best[2]
+
+
+def _first_stage(log: DriveLog, base: DriveParams, start: dict[str, Any], periods: float, sigma: float,
+                 max_iter: int, make: Callable[..., OutputError], extra: np.ndarray, verbose: bool,
+                 stages: list[dict[str, Any]]) -> tuple[list[Track], float, int]:
+    """The first window: grid (``_best_candidate_grid``), IPOPT from the three best distinct grid points, the
+    optima kept as tracks unless the data reject them. Records the grid's best point in ``start``. Returns the
+    tracks, the noise estimate and the window's end."""
+    extras = np.atleast_2d(np.asarray(extra, dtype=float))
+    grid, stop = _best_candidate_grid(log, base, start, sigma, make, extras, periods)
     first = make(log, base, stop, sigma)
     first.verbose = verbose
     lo, hi = first.bounds()
     try:
-        grid = []
-        for th in _grid(base, start, np.atleast_2d(np.asarray(extra, dtype=float)), lo, hi):
-            grid.append((first.cost(th), th))
-            first.clear_cache()
-        grid = [g for g in grid if math.isfinite(g[0])]
-        if not grid:
-            raise IdentificationError("the FMU cannot simulate any start of the first window's grid")
         start.update(zip(NAMES, map(float, np.exp(min(grid, key=lambda g: g[0])[1][:3]))))
         tracks = []
         for th in _distinct_best(grid, 3):
@@ -475,7 +578,7 @@ def _first_stage(log: DriveLog, base: DriveParams, start: dict[str, Any], stop: 
         stages.append({"window_s": stop / log.meta.sample_rate_hz, **tracks[0].info, "multistart": 3,
                        "tracks": len(tracks), "evaluations": first.evaluations,
                        **dict(zip(NAMES, map(float, np.exp(tracks[0].theta[:3]))))})
-        return tracks, sigma
+        return tracks, sigma, stop
     finally:
         first.close()
 
@@ -569,8 +672,12 @@ def _next_window(log: DriveLog, base: DriveParams, make: Callable[..., OutputErr
     target = n
     while target >= growth * stop and track.cov is not None:
         probe = make(log, base, target, sigma)
-        if _nearly_linear(probe, track.theta, track.cov):
-            return probe, False
+        try:
+            if _nearly_linear(probe, track.theta, track.cov):
+                return probe, False
+        except BaseException:
+            probe.close()
+            raise
         probe.close()
         target = int(stop * math.sqrt(target / stop))
     nxt = min(n, int(growth * stop))
@@ -592,11 +699,15 @@ def _continuation(log: DriveLog, base: DriveParams, start: dict[str, Any], track
         problem.verbose = verbose
         lo, hi = problem.bounds()
         last = problem.stop >= log.n
-        for t in tracks:
-            theta = (_scale_scan(problem, t.theta, lo, hi, len(stages), start["f_peak_hz"]) if rescan
-                     else _d0_scan(problem, t.theta, 10))
-            t.theta, t.info = fit_ipopt(problem, theta, lo, hi, final_iter if last else stage_iter)
-        tracks, sigma = _settle(problem, tracks)
+        try:
+            for t in tracks:
+                theta = (_scale_scan(problem, t.theta, lo, hi, len(stages), start["f_peak_hz"]) if rescan
+                         else _d0_scan(problem, t.theta, 10))
+                t.theta, t.info = fit_ipopt(problem, theta, lo, hi, final_iter if last else stage_iter)
+            tracks, sigma = _settle(problem, tracks)
+        except BaseException:  # Ctrl-C, a failed fit: the FMU instance and its folder go now
+            problem.close()
+            raise
         stages.append({"window_s": problem.stop / rate, **tracks[0].info, "evaluations": problem.evaluations,
                        "grid": rescan, "tracks": len(tracks),
                        **dict(zip(NAMES, map(float, np.exp(tracks[0].theta[:3]))))})

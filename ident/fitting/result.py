@@ -61,6 +61,19 @@ class Estimate:
             "" if self.identifiable else "  NOT IDENTIFIABLE")
 
 
+def _finite(value: Any) -> Any:
+    """A JSON-ready copy: numpy numbers as Python ones, NaN and infinities as None (strict JSON has neither)."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
 @dataclass
 class TwoInertiaFit:
     """Result of ``identify(log)`` for the two-inertia model."""
@@ -123,7 +136,7 @@ class TwoInertiaFit:
                               "(residual-based, blocks of one ringing period)",
                 "cramer_rao_std": dict(zip(NAMES, crb.tolist())),
                 "correlation": self.correlation.round(6).to_dict(), "alternatives": self.alternatives,
-                "start": {k: v for k, v in self.start.items()}, "stages": self.stages,
+                "start": _finite(self.start), "stages": _finite(self.stages),
                 "load_offset_rad": self.load_offset_rad, "elapsed_s": self.elapsed_s}
 
     def plot(self, path: str | Path) -> Path:

@@ -16,10 +16,12 @@ fit of the load's acceleration on position and velocity sign (Savitzky-Golay der
 period), an offset per segment removed by demeaning within each segment (no per-segment dummy columns: their size
 grew with rows x segments, the superlinear memory of issue 21).
 
-When no segment qualifies (a chirp, a log that never lets the motor rest) or the least-squares frequency disagrees
-with the spectral one by more than ``CONSISTENT_W2`` (the two measure the same w_l^2 when the segments are free
-ringing), ``equation_error_start`` also returns the spectral peaks of the whole load signal and of the torque-to-
-load transfer ratio as candidates; the first window's grid then scans them (``start["candidates_hz"]``).
+The spectral peak of free ringing is the start's frequency (``frequency_trusted``). The least-squares decay is used
+only when its frequency agrees with the spectral one within ``CONSISTENT_W2`` (``consistent``; the Savitzky-Golay
+derivatives lose accuracy below ~16 samples per period: 8.5 samples gave 0.63 of w_l^2); otherwise the first
+window's grid spans the friction widely. When no segment qualifies (a chirp, a log that never lets the motor rest),
+the spectral peaks of the whole load signal and of the torque-to-load transfer ratio are the candidates
+(``candidates_hz``) that the first window's grid scans.
 """
 from __future__ import annotations
 
@@ -170,12 +172,13 @@ def equation_error_start(log: DriveLog, base: DriveParams) -> dict[str, float]:
         w2_ls, f_over_J, rows, window = _ls_ringing(log, segs, f_peak, sigma)
     consistent = (f_peak is not None and w2_ls > 0 and
                   abs(w2_ls / (2 * math.pi * f_peak) ** 2 - 1) <= CONSISTENT_W2)
-    candidates = [f_peak] if consistent else [f for f in [f_peak] if f] + whole_log_candidates(log)
+    candidates = [f_peak] if f_peak is not None else whole_log_candidates(log)
     if not candidates:
         raise StartError("the load shows no ringing: neither free ringing while the motor rests nor a resonance "
                          "in the whole log; K*, J_l* and f_l* are not excited (apply pulses and let the load ring)")
     f0 = candidates[0]
     out.update(w_l2=(2 * math.pi * f0) ** 2, w_l2_ls=w2_ls, f_peak_hz=f0,
                f_l_over_J_l=f_over_J if consistent and f_over_J > 0 else math.nan,
-               rows=rows, window=window, consistent=float(consistent), candidates_hz=candidates)
+               rows=rows, window=window, consistent=float(consistent), frequency_trusted=float(f_peak is not None),
+               candidates_hz=candidates)
     return out
