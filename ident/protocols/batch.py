@@ -4,47 +4,156 @@ By default a local ``dask.distributed`` cluster of worker processes (one thread 
 FMU instance); with ``scheduler="tcp://HOST:PORT"`` the batch goes to an existing cluster. Each worker builds or
 loads the FMU itself (``fmu_build`` caches it per machine, atomically), so only parameters and results travel.
 Results come back in the order of the inputs, whatever order the workers finish in.
+
+Faults are named, never waited out: a scheduler that cannot be reached within ``CONNECT_TIMEOUT_S`` and a cluster
+that has lost every worker while tasks are pending raise ``BatchError``. Those clocks only decide *whether the
+cluster is alive*; no result depends on them. Local workers keep their temporary files (unpacked FMUs, Dask's
+scratch space) in one folder that is removed with the cluster, also when the batch is interrupted.
 """
 from __future__ import annotations
 
 import os
-from typing import Any, Callable, Sequence, TypeVar
+import shutil
+import sys
+import tempfile
+from contextlib import contextmanager
+from typing import Any, Callable, Iterator, Sequence, TypeVar
 
 from tqdm import tqdm
 
 T = TypeVar("T")
 R = TypeVar("R")
 
+CONNECT_TIMEOUT_S = 10.0   # how long a scheduler may take to answer before it counts as unreachable
+LIVENESS_POLL_S = 5.0      # how often a batch waiting for results checks that the cluster still has workers
+
+
+class BatchError(RuntimeError):
+    """The batch cannot run: bad worker count, an unreachable scheduler, or a cluster without workers."""
+
 
 def default_workers() -> int:
     return max(1, min(os.cpu_count() or 1, 8))
 
 
+def check_workers(workers: int | None) -> None:
+    """``workers`` is None (the machine's cores), 0 (serial, no Dask) or a positive count."""
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
+        raise BatchError(f"workers = {workers!r}: use a whole number >= 0 (0 = serial, no Dask)")
+
+
+def connect(scheduler: str) -> Any:
+    """A client of the cluster at ``scheduler``, or ``BatchError`` naming it when it does not answer in time."""
+    from dask.distributed import Client
+
+    try:
+        return Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise BatchError(f"cannot reach the Dask scheduler at {scheduler} within {CONNECT_TIMEOUT_S:g} s: "
+                         f"{exc}") from None
+
+
 def run_batch(fn: Callable[[T], R], items: Sequence[T], *, scheduler: str | None = None, workers: int | None = None,
               progress: bool = False, desc: str = "runs") -> list[R]:
     """``[fn(x) for x in items]`` on Dask; ``workers=0`` runs serially in this process (no Dask at all)."""
+    check_workers(workers)
     items = list(items)
     if not items:
         return []
     if workers == 0 and scheduler is None:
         return [fn(x) for x in tqdm(items, desc=desc, disable=not progress)]
-    from dask.distributed import Client, LocalCluster, as_completed
+    if scheduler is not None:
+        client = connect(scheduler)
+        try:
+            return _gather(client, fn, items, progress, desc, scheduler)
+        finally:
+            client.close()
+    return _run_local(fn, items, min(workers or default_workers(), len(items)), progress, desc)
 
-    cluster = None
-    if scheduler is None:
-        n = min(workers or default_workers(), len(items))
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
-    client = Client(cluster if cluster is not None else scheduler)
+
+def _run_local(fn: Callable[[T], R], items: list[T], n: int, progress: bool, desc: str) -> list[R]:
+    import logging
+
+    import dask
+    from dask.distributed import Client, LocalCluster
+
+    scratch = tempfile.mkdtemp(prefix="hdrive-workers-")
+    cluster = client = None
     try:
-        futures = client.map(fn, items, pure=False)
-        index = {f.key: i for i, f in enumerate(futures)}
-        results: list[Any] = [None] * len(items)
-        with tqdm(total=len(items), desc=desc, disable=not progress) as bar:
-            for future in as_completed(futures):
+        with dask.config.set({"temporary-directory": scratch}):
+            with _signals_deferred():  # an interrupt during start-up is handled once the cluster can be shut down
+                # the workers' own warnings (e.g. tasks cancelled by an interrupt) are not the user's business
+                cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                                       local_directory=scratch, env={"TMPDIR": scratch}, silence_logs=logging.ERROR)
+                client = Client(cluster)
+            return _gather(client, fn, items, progress, desc, "the local cluster")
+    finally:
+        _shut_down(client, cluster, interrupted=sys.exc_info()[0] is not None)
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+@contextmanager
+def _signals_deferred() -> Iterator[None]:
+    """Hold SIGINT / SIGTERM back while the block runs (they are delivered when it ends); main thread only."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held = {signal.SIGINT, signal.SIGTERM}
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def _shut_down(client: Any, cluster: Any, interrupted: bool) -> None:
+    """Shut the client and the local cluster down. When the batch was interrupted (Ctrl-C, SIGTERM, an error), the
+    worker processes are killed first, so that the shutdown takes a moment rather than waiting for running tasks;
+    Dask's own complaints about that are the expected end of an interrupted batch, not news for the user."""
+    import logging
+    import multiprocessing
+
+    if interrupted:
+        for child in multiprocessing.active_children():
+            child.kill()
+    quiet = logging.getLogger("distributed")
+    level = quiet.level
+    quiet.setLevel(logging.CRITICAL)
+    try:
+        for part in (client, cluster):
+            if part is not None:
+                try:
+                    part.close(timeout=0.5 if interrupted else 5)
+                except Exception:  # noqa: BLE001 - see the docstring
+                    pass
+    finally:
+        if not interrupted:  # after an interrupt the process is on its way out: Dask's late complaints stay quiet
+            quiet.setLevel(level)
+
+
+def _gather(client: Any, fn: Callable[[T], R], items: list[T], progress: bool, desc: str, where: str) -> list[R]:
+    """Submit, then collect in input order; a worker's exception is re-raised here; ``BatchError`` when the cluster
+    has no worker left while tasks are pending (it would wait forever)."""
+    from dask.distributed import wait
+
+    futures = client.map(fn, items, pure=False)
+    index = {f.key: i for i, f in enumerate(futures)}
+    results: list[Any] = [None] * len(items)
+    pending = set(futures)
+    with tqdm(total=len(items), desc=desc, disable=not progress) as bar:
+        while pending:
+            try:
+                done, pending = wait(pending, timeout=LIVENESS_POLL_S, return_when="FIRST_COMPLETED")
+            except TimeoutError:
+                if not client.scheduler_info().get("workers"):
+                    client.cancel(list(pending))
+                    raise BatchError(f"{where} has no workers left; {len(pending)} of {len(items)} {desc} "
+                                     "unfinished") from None
+                continue
+            for future in done:
                 results[index[future.key]] = future.result()  # re-raises a worker's exception here
                 bar.update()
-        return results
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+    return results
