@@ -271,6 +271,36 @@ def cmd_paper_effects(args: argparse.Namespace) -> dict:
     return {"report": str(report), "summary": json.loads(summary.to_json(orient="records"))}
 
 
+def cmd_design_experiment(args: argparse.Namespace) -> dict:
+    from pathlib import Path
+
+    from .common.output import staged_folder
+    from .fitting.design import design_experiment
+    from .fitting.logs import read_sidecar
+
+    meta = read_sidecar(args.meta)
+    ranges = {name: (float(v[0]), float(v[1])) for name, v in
+              (("K_star", args.K_star), ("J_l_star", args.J_l_star), ("f_l_star", args.f_l_star)) if v}
+    design = design_experiment(meta, ranges=ranges, max_torque=args.max_torque, max_travel=args.max_travel,
+                               duration_s=args.duration, noise_m=args.noise_m,
+                               progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    out = design.to_dict()
+    with staged_folder(args.out, last="design.json") as stage:
+        design.to_frame().to_csv(stage / "schedule.csv", index=False, float_format="%.17g")
+        design.bounds.to_csv(stage / "bounds.csv", index=False)
+        (stage / "design.json").write_text(json.dumps(out, indent=2) + "\n")
+    files = {name: str(Path(args.out) / name) for name in ("schedule.csv", "bounds.csv", "design.json")}
+    if not args.json:
+        b = design.block
+        print(f"block ({b.seconds():.3f} s, repeated): +-{b.pulse_star:g} f_m pulses of {b.width_s * 1e3:g} ms, "
+              + (f"+-{b.move_star:g} f_m moves held {b.hold_s * 1e3:g} ms, " if b.move_star else "no moves, ")
+              + f"rests of {b.rest_s:g} s")
+        print("worst relative bound over the range (1 sigma): "
+              + ", ".join(f"{k} {v:.2e}" for k, v in design.worst().items()))
+        print(f"wrote {files['schedule.csv']} (time_s, motor_torque_Nm), {files['bounds.csv']}, {files['design.json']}")
+    return {**out, "files": files}
+
+
 def cmd_emps_report(args: argparse.Namespace) -> dict:
     from .studies.emps import emps_report
 
@@ -416,11 +446,28 @@ def _add_emps_report(sub: Any) -> None:
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_emps_report)
 
+def _add_design_experiment(sub: Any) -> None:
+    p = sub.add_parser("design-experiment", help="a torque schedule that identifies K*, J_l*, f_l* over a range of "
+                       "drives (robust prior-averaged D-optimal design), with the bounds it achieves")
+    p.add_argument("--meta", required=True, help="JSON sidecar with the known drive data (physics.md section 4)")
+    p.add_argument("--max-torque", type=float, required=True, help="largest motor torque allowed [N m]")
+    p.add_argument("--max-travel", type=float, required=True, help="largest load (joint) travel allowed [rad]")
+    p.add_argument("--duration", type=float, required=True, help="length of the experiment [s]")
+    p.add_argument("--noise-m", type=float, default=5e-9,
+                   help="load sensor noise at the arm tip [m] for the reported bounds (default 5e-9)")
+    for name, (lo, hi) in (("K-star", (1e5, 1e7)), ("J-l-star", (500, 1e4)), ("f-l-star", (0.01, 1))):
+        p.add_argument(f"--{name}", type=float, nargs=2, metavar=("LOW", "HIGH"),
+                       help=f"range of {name.replace('-', '_').replace('_star', '*')} (default {lo:g} {hi:g})")
+    p.add_argument("--out", required=True, help="output folder: schedule.csv, bounds.csv, design.json")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=cmd_design_experiment)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="hdrive", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     for add in (_add_build_fmu, _add_demo, _add_resolution, _add_sweep, _add_study, _add_identify, _add_predict,
-                _add_diagnose, _add_paper_effects, _add_emps_report):
+                _add_diagnose, _add_paper_effects, _add_emps_report, _add_design_experiment):
         add(sub)
     return parser
 
@@ -430,7 +477,7 @@ def build_parser() -> argparse.ArgumentParser:
 _MINIMA: dict[str, float] = {"workers": 0, "draws": 2, "pulses": 1, "steps": 1, "levels": 2, "max_effects": 1,
                              "candidate_budget": 0}
 _MINIMA_BY_COMMAND: dict[tuple[str, str], float] = {("diagnose", "pulses"): 0}
-_POSITIVE = ("eps1_um", "amplitude")
+_POSITIVE = ("eps1_um", "amplitude", "max_torque", "max_travel", "duration", "noise_m")
 
 
 EXIT_BAD_INPUT = 2

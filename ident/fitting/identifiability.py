@@ -8,7 +8,10 @@ A parameter is **not identifiable** from a log when
    sandwich) exceeds ``MAX_REL_STD`` = 10 % (the issue's threshold): the log leaves it open;
 3. the cost is multi-modal: another optimum that the data do not reject (likelihood ratio below the 99.9 % level,
    ``identify.REJECT_CHI2``) survived the continuation from the first window's multi-start, and the parameter differs
-   between the two by more than ``Z95`` of its standard deviation.
+   between the two by more than ``Z95`` of its standard deviation;
+4. the model does not explain the log at all: the residual stays above ``UNRELIABLE`` x the noise (then no value is
+   trusted, whatever its interval; between the mismatch warning's threshold and this, the values stand with
+   residual-based intervals and the warning).
 
 The reason names the cause in the physics of the drive, from the Fisher information's structure: which parameters
 move together (correlation above ``SEPARABLE`` = 0.99 in magnitude) and what the log lacks. The fix says what to
@@ -25,6 +28,9 @@ from .result import BOUNDS, NAMES, Z95
 
 MAX_REL_STD = 0.10
 SEPARABLE = 0.99
+# Residual over noise above which the misfit dominates (its power 8x the noise's) and the values are not trusted:
+# the level at which the project's model-mismatch warning used to fire.
+UNRELIABLE = 3.0
 
 LABEL = {"K_star": "K*", "J_l_star": "J_l*", "f_l_star": "f_l*"}
 # What each weak combination means physically, and what to record to pin it.
@@ -59,12 +65,14 @@ def _correlation_reason(name: str, corr: np.ndarray) -> tuple[str, tuple[str, st
 
 
 def assess(theta: np.ndarray, std_ln: np.ndarray, cov: np.ndarray, bound: list[str],
-           alternatives: list[np.ndarray], free_segments: int) -> tuple[dict[str, tuple[bool, str]], str]:
+           alternatives: list[np.ndarray], free_segments: int, over_noise: float = 1.0
+           ) -> tuple[dict[str, tuple[bool, str]], str]:
     """Verdict and reason per parameter, and the recording fix (empty when all three are identifiable).
 
     ``theta``: the estimate (ln K*, ln J_l*, ln f_l*, ...); ``std_ln``: the reported standard deviations of the
     three log-parameters; ``cov``: their Cramer-Rao covariance (for the correlations); ``bound``: the names at a
-    bound; ``alternatives``: the thetas of competing optima; ``free_segments``: free-ringing segments in the log."""
+    bound; ``alternatives``: the thetas of competing optima; ``free_segments``: free-ringing segments in the log;
+    ``over_noise``: the whole-log residual over the noise (above ``UNRELIABLE`` no value is trusted)."""
     s = np.sqrt(np.maximum(np.diag(cov[:3, :3]), 1e-300))
     corr = cov[:3, :3] / np.outer(s, s)
     verdicts: dict[str, tuple[bool, str]] = {}
@@ -74,7 +82,7 @@ def assess(theta: np.ndarray, std_ln: np.ndarray, cov: np.ndarray, bound: list[s
         if name in bound:
             reasons.append(f"{LABEL[name]} = {math.exp(theta[i]):.4g} sits at the edge of the physical range "
                            f"{BOUNDS[name]}: the fit found no optimum inside it")
-        rel = float(math.expm1(std_ln[i])) if math.isfinite(std_ln[i]) else math.inf
+        rel = float(math.expm1(min(std_ln[i], 700.0))) if math.isfinite(std_ln[i]) else math.inf
         if rel > MAX_REL_STD or name in bound:
             text, pair = _correlation_reason(name, corr)
             reasons.append(f"{LABEL[name]} is determined only to +-{100 * rel:.3g} % (1 sigma) by this log"
@@ -82,6 +90,10 @@ def assess(theta: np.ndarray, std_ln: np.ndarray, cov: np.ndarray, bound: list[s
             if pair:
                 pairs.add(pair)
         reasons += _multimodal(i, theta, std_ln, alternatives)
+        if over_noise > UNRELIABLE:
+            reasons.append(f"the fitted model leaves residuals {over_noise:.3g}x the load sensor noise: it does not "
+                           "explain this log, so no value from it can be trusted (an effect the model lacks -- see "
+                           "`hdrive diagnose` -- or a fit trapped in a local optimum)")
         if free_segments == 0 and reasons:
             reasons.append("the load never rings freely (the motor never rests while it rings)")
         verdicts[name] = (not reasons, "; ".join(reasons))

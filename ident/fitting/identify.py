@@ -850,14 +850,15 @@ def build_result(log: DriveLog, problem: OutputError, tracks: list[Track], start
     q_m, q_l, offset = problem.simulate(theta)
     std_ln = np.sqrt(np.maximum(np.diag(sand)[:3], np.diag(crb)[:3]))
     bound = at_bound(theta)
-    verdicts, fix = assess(theta, std_ln, crb, bound, [t.theta for t in tracks[1:]], int(start["segments"]))
+    fit = _fit_metrics(problem, q_m, q_l, sigma)
+    verdicts, fix = assess(theta, std_ln, crb, bound, [t.theta for t in tracks[1:]], int(start["segments"]),
+                           fit["residual_over_noise"])
     estimates = {}
     for i, name in enumerate(NAMES):
         v = float(math.exp(theta[i]))
         half = min(Z95 * float(std_ln[i]), 700.0)  # a parameter the log does not determine: (0, inf), not a crash
         estimates[name] = Estimate(v, (v * math.exp(-half), v * math.exp(half)), v * float(std_ln[i]),
                                    verdicts[name][0], verdicts[name][1], name in bound)
-    fit = _fit_metrics(problem, q_m, q_l, sigma)
     warnings = [c["detail"] for c in data_checks if c["status"] == "warning"]
     warnings += _warnings(estimates, fit, bound, problem.y_l.size, fix)
     return TwoInertiaFit(estimates, problem.params(theta), theta, sand[:3, :3], crb[:3, :3], fit, warnings,

@@ -295,6 +295,14 @@ def _load_meta(path: Path, meta: str | Path | dict | None) -> tuple[LogMeta, str
     return _parse_meta(content, where)
 
 
+def read_sidecar(path: str | Path) -> LogMeta:
+    """A sidecar on its own (the known drive data, e.g. for planning an experiment), checked like ``read_log``'s."""
+    path = Path(path)
+    if not path.is_file():
+        raise LogError(f"{path}: sidecar not found")
+    return _parse_meta(_read_json(path), f"sidecar {path}")[0]
+
+
 def _read_json(path: Path) -> Any:
     try:
         return json.loads(path.read_text())

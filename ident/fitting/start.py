@@ -16,10 +16,12 @@ fit of the load's acceleration on position and velocity sign (Savitzky-Golay der
 period), an offset per segment removed by demeaning within each segment (no per-segment dummy columns: their size
 grew with rows x segments, the superlinear memory of issue 21).
 
-The spectral peak of free ringing is the start's frequency (``frequency_trusted``). The least-squares decay is used
-only when its frequency agrees with the spectral one within ``CONSISTENT_W2`` (``consistent``; the Savitzky-Golay
-derivatives lose accuracy below ~16 samples per period: 8.5 samples gave 0.63 of w_l^2); otherwise the first
-window's grid spans the friction widely. When no segment qualifies (a chirp, a log that never lets the motor rest),
+The spectral peak of free ringing is the start's frequency (``frequency_trusted``) when the least-squares frequency
+agrees with it within ``CONSISTENT_W2`` (``consistent``), or when it comes from several segments and stands clear
+of the noise (``MIN_SEGMENTS``, ``MIN_CONTRAST``: the Savitzky-Golay derivatives lose accuracy below ~16 samples per
+period -- 8.5 samples gave 0.63 of w_l^2 -- while the peak stays right). The least-squares decay is used only when
+consistent; otherwise the first window's grid spans the friction widely. An untrusted peak (one short segment at
+1 kHz read 374 Hz for a 113 Hz ringing) stays one candidate among those below. When no segment qualifies (a chirp, a log that never lets the motor rest),
 the spectral peaks of the whole load signal and of the torque-to-load transfer ratio are the candidates
 (``candidates_hz``) that the first window's grid scans.
 """
@@ -37,6 +39,11 @@ from .noise import white_noise_std
 MIN_SEGMENT_SAMPLES = 32        # a spectrum needs a few samples per period and a few periods
 CONSISTENT_W2 = 0.3             # relative disagreement of the two w_l^2 beyond which the start is not trusted
 MIN_FREQUENCY_HZ = 2.0          # below this a "ringing" is a drift (the old start's floor, kept)
+# A spectral peak is trusted without the least-squares check when it comes from at least MIN_SEGMENTS segments and
+# stands MIN_CONTRAST (20 dB) above the band's median power: the largest of ~1000 bins of pure noise reaches ~10x
+# the median (an exponential's ln(1000) / ln(2)).
+MIN_SEGMENTS = 3
+MIN_CONTRAST = 100.0
 
 
 class StartError(RuntimeError):
@@ -63,19 +70,24 @@ def free_ringing_segments(log: DriveLog, base: DriveParams, min_len: int = MIN_S
     return out
 
 
-def segment_spectrum_peak(segments: list[np.ndarray], rate_hz: float) -> float | None:
-    """Frequency [Hz] of the largest peak above ``MIN_FREQUENCY_HZ`` of the summed power spectra of ``segments``
-    (each detrended, Hann-windowed and zero-padded to a common length); None when there is nothing to analyse."""
+def segment_spectrum_peak(segments: list[np.ndarray], rate_hz: float) -> tuple[float | None, float]:
+    """(frequency [Hz] of the largest peak above ``MIN_FREQUENCY_HZ`` of the summed power spectra of ``segments``
+    (each detrended, Hann-windowed and zero-padded to a common length), the peak's power over the band's median);
+    (None, 0) when there is nothing to analyse."""
     longest = max((s.size for s in segments), default=0)
     if longest < MIN_SEGMENT_SAMPLES:
-        return None
+        return None, 0.0
     nfft = 1 << int(math.ceil(math.log2(4 * longest)))
     power = np.zeros(nfft // 2 + 1)
     for s in segments:
         t = np.arange(s.size)
         detrended = s - np.polyval(np.polyfit(t, s, 1), t)
         power += np.abs(np.fft.rfft(detrended * np.hanning(s.size), nfft)) ** 2
-    return _peak(power, np.fft.rfftfreq(nfft, 1.0 / rate_hz))
+    freq = np.fft.rfftfreq(nfft, 1.0 / rate_hz)
+    peak = _peak(power, freq)
+    band = power[freq > MIN_FREQUENCY_HZ]
+    contrast = float(band.max() / max(np.median(band), 1e-300)) if band.size else 0.0
+    return peak, contrast
 
 
 def _peak(power: np.ndarray, freq: np.ndarray) -> float | None:
@@ -164,21 +176,22 @@ def equation_error_start(log: DriveLog, base: DriveParams) -> dict[str, float]:
     y = log.load_pos_rad
     sigma = max(white_noise_std(y), 1e-15)
     segs = free_ringing_segments(log, base)
-    f_peak = segment_spectrum_peak([y[s:e] for s, e in segs], rate) if segs else None
-    out: dict[str, float] = {"segments": len(segs), "sigma_start_rad": sigma}
+    f_peak, contrast = segment_spectrum_peak([y[s:e] for s, e in segs], rate) if segs else (None, 0.0)
+    out: dict[str, float] = {"segments": len(segs), "sigma_start_rad": sigma, "peak_contrast": contrast}
     w2_ls = f_over_J = math.nan
     rows, window = 0, 0
     if f_peak is not None:
         w2_ls, f_over_J, rows, window = _ls_ringing(log, segs, f_peak, sigma)
     consistent = (f_peak is not None and w2_ls > 0 and
                   abs(w2_ls / (2 * math.pi * f_peak) ** 2 - 1) <= CONSISTENT_W2)
-    candidates = [f_peak] if f_peak is not None else whole_log_candidates(log)
+    trusted = f_peak is not None and (consistent or (len(segs) >= MIN_SEGMENTS and contrast >= MIN_CONTRAST))
+    candidates = [f_peak] if trusted else [f for f in (f_peak,) if f is not None] + whole_log_candidates(log)
     if not candidates:
         raise StartError("the load shows no ringing: neither free ringing while the motor rests nor a resonance "
                          "in the whole log; K*, J_l* and f_l* are not excited (apply pulses and let the load ring)")
     f0 = candidates[0]
     out.update(w_l2=(2 * math.pi * f0) ** 2, w_l2_ls=w2_ls, f_peak_hz=f0,
                f_l_over_J_l=f_over_J if consistent and f_over_J > 0 else math.nan,
-               rows=rows, window=window, consistent=float(consistent), frequency_trusted=float(f_peak is not None),
+               rows=rows, window=window, consistent=float(consistent), frequency_trusted=float(trusted),
                candidates_hz=candidates)
     return out
