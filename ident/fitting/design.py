@@ -31,6 +31,7 @@ import numpy as np
 import pandas as pd
 
 from ..model.params import DriveParams
+from .identify import information_inverse
 from .logs import LogMeta
 from .result import NAMES
 
@@ -106,8 +107,8 @@ def information(drive: DriveParams, torque: np.ndarray, rate_hz: float, sigma_ra
         J = problem.jacobian(theta)
     finally:
         problem.close()
-    cov = np.linalg.pinv(J.T @ J)
-    return np.linalg.pinv(cov[:3, :3]), float(np.ptp(log.load_pos_rad))
+    cov = information_inverse(J.T @ J)
+    return information_inverse(cov[:3, :3]), float(np.ptp(log.load_pos_rad))
 
 
 def _score(block: Block, drives: list[DriveParams], f_m: float, rate_hz: float, sigma: float, max_torque: float,
@@ -189,7 +190,7 @@ def design_experiment(meta: LogMeta, *, ranges: dict[str, tuple[float, float]] |
     for kind, group in (("prior", drives), ("corner", corner_drives(base, ranges))):
         for d in group:
             info, travel = information(d, torque, meta.sample_rate_hz, sigma)
-            crb = np.sqrt(np.diag(np.linalg.pinv(info)))
+            crb = np.sqrt(np.diag(information_inverse(info)))
             rows.append({"kind": kind, **{k: getattr(d, k) for k in NAMES},
                          **{f"crb_rel_{k}": float(c) for k, c in zip(NAMES, crb)}, "travel_rad": travel})
     settings = {"ranges": ranges, "max_torque_Nm": max_torque, "max_travel_rad": max_travel,

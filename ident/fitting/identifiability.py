@@ -73,8 +73,10 @@ def assess(theta: np.ndarray, std_ln: np.ndarray, cov: np.ndarray, bound: list[s
     three log-parameters; ``cov``: their Cramer-Rao covariance (for the correlations); ``bound``: the names at a
     bound; ``alternatives``: the thetas of competing optima; ``free_segments``: free-ringing segments in the log;
     ``over_noise``: the whole-log residual over the noise (above ``UNRELIABLE`` no value is trusted)."""
-    s = np.sqrt(np.maximum(np.diag(cov[:3, :3]), 1e-300))
-    corr = cov[:3, :3] / np.outer(s, s)
+    with np.errstate(all="ignore"):
+        s = np.sqrt(np.maximum(np.diag(cov[:3, :3]), 1e-300))
+        corr = cov[:3, :3] / np.outer(s, s)
+    corr = np.where(np.isfinite(corr) & (np.abs(corr) <= 1.0 + 1e-9), corr, 0.0)  # a degenerate bound: no pair
     verdicts: dict[str, tuple[bool, str]] = {}
     pairs: set[tuple[str, str]] = set()
     for i, name in enumerate(NAMES):
@@ -85,7 +87,8 @@ def assess(theta: np.ndarray, std_ln: np.ndarray, cov: np.ndarray, bound: list[s
         rel = float(math.expm1(min(std_ln[i], 700.0))) if math.isfinite(std_ln[i]) else math.inf
         if rel > MAX_REL_STD or name in bound:
             text, pair = _correlation_reason(name, corr)
-            reasons.append(f"{LABEL[name]} is determined only to +-{100 * rel:.3g} % (1 sigma) by this log"
+            spread = f"+-{100 * rel:.3g} %" if rel <= 10 else "no better than a factor of 10"
+            reasons.append(f"{LABEL[name]} is determined only to {spread} (1 sigma) by this log"
                            + (f": {text}" if text else ""))
             if pair:
                 pairs.add(pair)

@@ -18,10 +18,11 @@ grew with rows x segments, the superlinear memory of issue 21).
 
 The spectral peak of free ringing is the start's frequency (``frequency_trusted``) when the least-squares frequency
 agrees with it within ``CONSISTENT_W2`` (``consistent``), or when it comes from several segments and stands clear
-of the noise (``MIN_SEGMENTS``, ``MIN_CONTRAST``: the Savitzky-Golay derivatives lose accuracy below ~16 samples per
+of the noise over at least two of its periods (``MIN_SEGMENTS``, ``MIN_CONTRAST``, ``MIN_PERIODS``; a pulse train
+every 56 ms on a 17.7 Hz ringing showed a resolution-bound peak at 12.5 Hz; the Savitzky-Golay derivatives lose accuracy below ~16 samples per
 period -- 8.5 samples gave 0.63 of w_l^2 -- while the peak stays right). The least-squares decay is used only when
 consistent; otherwise the first window's grid spans the friction widely. An untrusted peak (one short segment at
-1 kHz read 374 Hz for a 113 Hz ringing) stays one candidate among those below. When no segment qualifies (a chirp, a log that never lets the motor rest),
+1 kHz read 374 Hz for a 113 Hz ringing) stays one candidate among those below, with the least-squares frequency. When no segment qualifies (a chirp, a log that never lets the motor rest),
 the spectral peaks of the whole load signal and of the torque-to-load transfer ratio are the candidates
 (``candidates_hz``) that the first window's grid scans.
 """
@@ -44,6 +45,7 @@ MIN_FREQUENCY_HZ = 2.0          # below this a "ringing" is a drift (the old sta
 # the median (an exponential's ln(1000) / ln(2)).
 MIN_SEGMENTS = 3
 MIN_CONTRAST = 100.0
+MIN_PERIODS = 2.0   # ... and when the longest segment spans this many periods of it (else the peak is resolution-bound)
 
 
 class StartError(RuntimeError):
@@ -184,8 +186,14 @@ def equation_error_start(log: DriveLog, base: DriveParams) -> dict[str, float]:
         w2_ls, f_over_J, rows, window = _ls_ringing(log, segs, f_peak, sigma)
     consistent = (f_peak is not None and w2_ls > 0 and
                   abs(w2_ls / (2 * math.pi * f_peak) ** 2 - 1) <= CONSISTENT_W2)
-    trusted = f_peak is not None and (consistent or (len(segs) >= MIN_SEGMENTS and contrast >= MIN_CONTRAST))
-    candidates = [f_peak] if trusted else [f for f in (f_peak,) if f is not None] + whole_log_candidates(log)
+    longest = max((e - s for s, e in segs), default=0) / rate
+    resolved = f_peak is not None and longest * f_peak >= MIN_PERIODS
+    trusted = f_peak is not None and (consistent or (resolved and len(segs) >= MIN_SEGMENTS
+                                                     and contrast >= MIN_CONTRAST))
+    own = [f_peak] if f_peak is not None else []
+    if not trusted and w2_ls > 0:
+        own.append(math.sqrt(w2_ls) / (2 * math.pi))
+    candidates = [f_peak] if trusted else own + whole_log_candidates(log)
     if not candidates:
         raise StartError("the load shows no ringing: neither free ringing while the motor rests nor a resonance "
                          "in the whole log; K*, J_l* and f_l* are not excited (apply pulses and let the load ring)")
