@@ -526,8 +526,8 @@ def fit_pipeline(log: DriveLog, base: DriveParams, make: Callable[..., OutputErr
 def _grid(base: DriveParams, start: dict[str, Any], f_hz: float, extras: np.ndarray, lo: np.ndarray,
           hi: np.ndarray) -> list[np.ndarray]:
     """The first window's grid: J_l* over 50..5e4 (the physical box's 10..1e6 narrowed to where drives are built,
-    two decades around the nominal 2500, 25 points), the frequency ``f_hz`` (from free ringing: +-3 %, its
-    accuracy; a candidate of the whole log's spectrum: tried both as the locked-motor ringing w_l and as the coupled
+    two decades around the nominal 2500, 25 points), the frequency ``f_hz`` (from free ringing: over its uncertainty,
+    ``_frequency_factors``; a candidate of the whole log's spectrum: tried both as the locked-motor ringing w_l and as the coupled
     mode w_l sqrt(1 + r^2 J_l*), the motor swinging too) and the friction around the start's decay (x1/3..3: its
     accuracy on the measured logs) or, without a trusted decay, f_l* over 1e-3..10 in factors of sqrt(10)."""
     pts = []
@@ -538,12 +538,36 @@ def _grid(base: DriveParams, start: dict[str, Any], f_hz: float, extras: np.ndar
             frictions = (start["f_l_over_J_l"] * np.geomspace(1 / 3, 3, 7) if decay else
                          np.geomspace(1e-3, 10.0, 9) * base.f_m / (J * base.J_m))
             if trusted:
-                freqs = (0.97, 1.0, 1.03) if len(extras) == 1 else (1.0,)
-                combos = [(w2 * wm, fj) for wm in freqs for fj in frictions]
+                combos = [(w2 * wm, fj) for wm in _frequency_factors(start, len(extras)) for fj in frictions]
             else:
                 combos = [(w, fj) for w in (w2, w2 / (1 + base.r ** 2 * J)) for fj in frictions]
             pts += [np.clip(np.concatenate([_theta(base, J, w, fj), row]), lo, hi) for w, fj in combos]
     return pts
+
+
+def _frequency_factors(start: dict[str, Any], alternatives: int) -> np.ndarray:
+    """Factors on the start's w_l^2 spanning its uncertainty (``start["w_l2_spread"]``, at least +-6 %) in steps of
+    6 % (3 % of frequency: about a quarter period of phase over the first window's 8 periods); only the start's value
+    when the grid also spans an effect's alternatives."""
+    if alternatives > 1:
+        return np.array([1.0])
+    span = math.log1p(min(float(start.get("w_l2_spread", 0.06)), 1.0))
+    half = max(1, int(math.ceil(span / math.log(1.06))))
+    return np.exp(np.linspace(-span, span, 2 * half + 1))
+
+
+def _scale_minima(problem: OutputError, theta: np.ndarray, lo: np.ndarray, hi: np.ndarray, count: int = 3
+                  ) -> list[np.ndarray]:
+    """The ``count`` lowest local minima of the cost along the scale (K*, J_l*, f_l* multiplied together: the
+    ringing's frequency and decay kept) over x1/1.6..1.6 in 1 % steps. When no start of the first window reached
+    the noise, the grid's factor-1.33 steps in J_l* were too coarse for the scale's basins, which slides of the motor
+    make narrow (measured on a PD log: every start ended 5 % off, the truth's basin between two grid points)."""
+    steps = np.log(np.geomspace(1 / 1.6, 1.6, 97))
+    pts = [np.clip(theta + np.pad([a, a, a], (0, theta.size - 3)), lo, hi) for a in steps]
+    cost = np.array([problem.cost(p) for p in pts])
+    problem.clear_cache()
+    inner = [i for i in range(1, cost.size - 1) if cost[i] <= cost[i - 1] and cost[i] <= cost[i + 1]]
+    return [pts[i] for i in sorted(inner, key=lambda i: cost[i])[:count]]
 
 
 def _distinct_best(grid: list[tuple[float, np.ndarray]], count: int) -> list[np.ndarray]:
@@ -625,6 +649,11 @@ def _first_stage(log: DriveLog, base: DriveParams, start: dict[str, Any], period
                 break
             theta, info = fit_ipopt(first, _d0_scan(first, th, 20), lo, hi, max_iter)
             tracks.append(Track(theta, info=info))
+        if not any(at_noise(first, t.theta) for t in tracks):
+            best = min(tracks, key=lambda t: first.cost(t.theta))
+            for th in _scale_minima(first, best.theta, lo, hi):
+                theta, info = fit_ipopt(first, th, lo, hi, max_iter)
+                tracks.append(Track(theta, info=info))
         starts = len(tracks)
         tracks, sigma = _settle(first, tracks)
         stages.append({"window_s": stop / log.meta.sample_rate_hz, **tracks[0].info, "multistart": starts,
@@ -920,9 +949,13 @@ def _warnings(estimates: dict[str, Estimate], fit: dict[str, float], bound: list
               ) -> list[str]:
     out = [f"{name} = {estimates[name].value:.4g} sits at its bound {BOUNDS[name]}: no result -- the log does not "
            "determine it, or the model cannot fit the log inside the physical range" for name in bound]
+    by_reason: dict[str, list[str]] = {}
     for name, e in estimates.items():
         if not e.identifiable:
-            out.append(f"{name} is not identifiable from this log: {e.reason}")
+            by_reason.setdefault(e.reason, []).append(name)
+    for reason, names in by_reason.items():
+        out.append(f"{' and '.join(names)} {'is' if len(names) == 1 else 'are'} not identifiable from this log: "
+                   f"{reason}")
     if fix:
         out.append(f"to identify all three: {fix}")
     if fit["residual_over_noise"] > mismatch_threshold(n):

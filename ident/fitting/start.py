@@ -16,9 +16,10 @@ fit of the load's acceleration on position and velocity sign (Savitzky-Golay der
 period), an offset per segment removed by demeaning within each segment (no per-segment dummy columns: their size
 grew with rows x segments, the superlinear memory of issue 21).
 
-The spectral peak of free ringing is the start's frequency (``frequency_trusted``) when the least-squares frequency
-agrees with it within ``CONSISTENT_W2`` (``consistent``), or when it comes from several segments and stands clear
-of the noise over at least two of its periods (``MIN_SEGMENTS``, ``MIN_CONTRAST``, ``MIN_PERIODS``; a pulse train
+The spectral peak of free ringing is the start's frequency (``frequency_trusted``) when it stands clear of the noise
+(``MIN_CONTRAST``) and either the least-squares frequency agrees with it within ``CONSISTENT_W2`` (``consistent``;
+their disagreement is then the uncertainty the first grid spans, ``w_l2_spread``: a PD log had 1.23 in w_l^2, the
+peak 19 % below the truth) or it comes from several segments over at least two of its periods (``MIN_SEGMENTS``, ``MIN_CONTRAST``, ``MIN_PERIODS``; a pulse train
 every 56 ms on a 17.7 Hz ringing showed a resolution-bound peak at 12.5 Hz; the Savitzky-Golay derivatives lose accuracy below ~16 samples per
 period -- 8.5 samples gave 0.63 of w_l^2 -- while the peak stays right). The least-squares decay is used only when
 consistent; otherwise the first window's grid spans the friction widely. An untrusted peak (one short segment at
@@ -45,6 +46,7 @@ MIN_FREQUENCY_HZ = 2.0          # below this a "ringing" is a drift (the old sta
 # the median (an exponential's ln(1000) / ln(2)).
 MIN_SEGMENTS = 3
 MIN_CONTRAST = 100.0
+W2_SPREAD = 0.06    # the smallest relative uncertainty of a trusted w_l^2 that the first grid spans
 MIN_PERIODS = 2.0   # ... and when the longest segment spans this many periods of it (else the peak is resolution-bound)
 
 
@@ -188,8 +190,10 @@ def equation_error_start(log: DriveLog, base: DriveParams) -> dict[str, float]:
                   abs(w2_ls / (2 * math.pi * f_peak) ** 2 - 1) <= CONSISTENT_W2)
     longest = max((e - s for s, e in segs), default=0) / rate
     resolved = f_peak is not None and longest * f_peak >= MIN_PERIODS
-    trusted = f_peak is not None and (consistent or (resolved and len(segs) >= MIN_SEGMENTS
-                                                     and contrast >= MIN_CONTRAST))
+    trusted = f_peak is not None and contrast >= MIN_CONTRAST and (consistent or (resolved and
+                                                                              len(segs) >= MIN_SEGMENTS))
+    # how far the frequency may be off: the two estimates' disagreement (w_l^2), at least 6 % (+-3 % in w_l)
+    spread = abs(w2_ls / (2 * math.pi * f_peak) ** 2 - 1) if consistent else 0.0
     own = [f_peak] if f_peak is not None else []
     if not trusted and w2_ls > 0:
         own.append(math.sqrt(w2_ls) / (2 * math.pi))
@@ -201,5 +205,6 @@ def equation_error_start(log: DriveLog, base: DriveParams) -> dict[str, float]:
     out.update(w_l2=(2 * math.pi * f0) ** 2, w_l2_ls=w2_ls, f_peak_hz=f0,
                f_l_over_J_l=f_over_J if consistent and f_over_J > 0 else math.nan,
                rows=rows, window=window, consistent=float(consistent), frequency_trusted=float(trusted),
+               w_l2_spread=max(W2_SPREAD, spread),
                candidates_hz=candidates)
     return out
