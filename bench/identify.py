@@ -25,7 +25,6 @@ import json
 import math
 import os
 import platform
-import resource
 import subprocess
 import sys
 import tempfile
@@ -37,10 +36,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from ident.fitting.identify import NAMES, IdentificationError, identify  # noqa: E402
-from ident.fitting.logs import LogError  # noqa: E402
-from tests.ident_support import cramer_rao_at_truth, read_back  # noqa: E402
-from tests.reference.generator import IDENTIFICATION_SLOW_SUITE, identification_case  # noqa: E402
+from ident.fitting.identify import NAMES, IdentificationError, identify
+from ident.fitting.logs import LogError
+from tests.ident_support import cramer_rao_at_truth, read_back
+from tests.reference.generator import IDENTIFICATION_SLOW_SUITE, identification_case
 
 
 def one(seed: int, kind: str, folder: Path, duration_s: float | None = None, rate_hz: float | None = None,

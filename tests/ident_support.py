@@ -18,8 +18,8 @@ import numpy as np
 
 from ident import read_log
 from ident.fitting.logs import DriveLog
-from tests.reference.generator import logs as gen
 from tests.reference.generator import excitations as exc
+from tests.reference.generator import logs as gen
 from tests.reference.generator.plant import Drive, Effects, HybridPlant
 
 

@@ -16,7 +16,12 @@ import pandas as pd
 import pytest
 
 from ident import DriveParams
-from ident.fitting.identify import NAMES, IdentificationError, equation_error_start, identify
+from ident.fitting.identify import (
+    NAMES,
+    IdentificationError,
+    equation_error_start,
+    identify,
+)
 from ident.fitting.logs import LogError, write_log
 from ident.fitting.predict import predict
 from ident.fitting.synthetic import synthetic_log

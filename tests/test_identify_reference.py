@@ -19,7 +19,11 @@ import pytest
 
 from ident.fitting.identify import NAMES, identify
 from tests.ident_support import cramer_rao_at_truth, paper_pulse_train, read_back
-from tests.reference.generator import IDENTIFICATION_SLOW_SUITE, IDENTIFICATION_SUITE, identification_case
+from tests.reference.generator import (
+    IDENTIFICATION_SLOW_SUITE,
+    IDENTIFICATION_SUITE,
+    identification_case,
+)
 from tests.reference.generator.plant import Drive
 
 SHORT_S = 2.0
