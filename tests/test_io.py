@@ -207,8 +207,20 @@ def test_irregular_time_against_the_median(tmp_path):
 def test_time_against_the_sample_rate(tmp_path):
     path = write_csv(tmp_path, rows(), meta={**META, "sample_rate_hz": 500.0})
     msg = read_error(path)
-    assert "run.csv: column time_s, row 2: irregular time: interval 0.001 s from row 1" in msg
-    assert "expected 0.002 s (1/sample_rate_hz (500 Hz))" in msg
+    assert "run.csv: sample rate: the sidecar says sample_rate_hz = 500 Hz, the column time_s runs at 1000 Hz" in msg
+
+
+@pytest.mark.parametrize("rel, ok", [(0.008, False), (2e-4, False), (5e-5, True)])
+def test_sample_rate_against_the_time_column(tmp_path, rel, ok):
+    """Issue 21: a sidecar rate 0.8 % off the time column is an error naming both numbers; any mismatch above 1e-4
+    relative is; below it is accepted."""
+    path = write_csv(tmp_path, rows(), meta={**META, "sample_rate_hz": RATE * (1 + rel)})
+    if ok:
+        assert read_log(path).n == 12
+        return
+    msg = read_error(path)
+    assert f"sample_rate_hz = {RATE * (1 + rel):.10g} Hz, the column time_s runs at 1000 Hz" in msg
+    assert f"relative difference {rel / (1 + rel):.3g} > 0.0001" in msg
 
 
 def test_parquet_bad_cells_and_columns(tmp_path):

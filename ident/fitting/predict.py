@@ -1,9 +1,11 @@
 """Resolution predicted from a fitted drive, with an interval propagated from the parameter uncertainty.
 
 The point prediction runs the paper's protocols (``impulse_resolution``, ``linear_resolution``) on the FMU with the
-fitted parameters; the interval comes from Monte Carlo: parameter draws from the fit's (sandwich) covariance of
+fitted parameters; the interval comes from Monte Carlo: parameter draws from the covariance behind the fit's reported
+intervals (``TwoInertiaFit.cov_reported``: per parameter the larger of the Cramer-Rao bound and the sandwich) of
 (ln K*, ln J_l*, ln f_l*), each run through the same protocols on Dask (``ident.protocols.batch``), then the 2.5 / 97.5
-percentiles of the draws.
+percentiles of the draws. A fit that does not identify all three parameters gets no prediction (``predict`` raises
+``NotIdentifiable``): a resolution from parameters the log leaves open would be a guess.
 """
 from __future__ import annotations
 
@@ -16,7 +18,11 @@ import pandas as pd
 from ..common.checks import whole
 from ..model.params import DriveParams
 from ..protocols.resolution import impulse_resolution, linear_resolution
-from .identify import NAMES, TwoInertiaFit
+from .result import NAMES, TwoInertiaFit
+
+
+class NotIdentifiable(ValueError):
+    """The fit does not identify all three parameters: no resolution is predicted from it."""
 
 
 def _resolutions(task: tuple[DriveParams, int, int]) -> tuple[float, float, int]:
@@ -43,7 +49,8 @@ class Prediction:
         return {"impulse_resolution_um": {"value": self.impulse_resolution_um, "ci95": list(self.impulse_ci95_um)},
                 "linear_resolution_um": {"value": self.linear_resolution_um, "ci95": list(self.linear_ci95_um)},
                 "linear_counts": self.linear_counts, "n_draws": len(self.draws),
-                "interval": "2.5/97.5 percentiles over parameter draws from the fit's sandwich covariance"}
+                "interval": "2.5/97.5 percentiles over parameter draws from the covariance of the fit's reported "
+                            "intervals"}
 
     def to_frame(self) -> pd.DataFrame:
         return self.draws
@@ -53,9 +60,13 @@ def predict(fit: TwoInertiaFit, *, n_draws: int = 20, n_pulses: int = 1000, n_st
             scheduler: str | None = None, workers: int | None = None, progress: bool = False) -> Prediction:
     """Impulse and linear resolution of the fitted drive; the interval from ``n_draws`` parameter draws."""
     n_draws = whole("n_draws", n_draws, 0)
+    if not fit.identifiable:
+        reasons = "; ".join(f"{k}: {e.reason}" for k, e in fit.estimates.items() if not e.identifiable)
+        raise NotIdentifiable(f"no prediction: the log does not identify all three parameters ({reasons})")
     rng = np.random.default_rng(seed)
     theta = np.asarray(fit.theta[:3], dtype=float)
-    chol = np.linalg.cholesky(fit.cov_sandwich + 1e-300 * np.eye(3))
+    lam, vec = np.linalg.eigh((fit.cov_reported + fit.cov_reported.T) / 2)
+    chol = vec * np.sqrt(np.maximum(lam, 0.0))  # a square root that tolerates the near-singular K*-J_l* pair
     thetas = [theta] + [theta + chol @ rng.standard_normal(3) for _ in range(n_draws)]
     drives = [fit.params.with_values(**dict(zip(NAMES, map(float, np.exp(t))))) for t in thetas]
     from ..protocols.batch import run_batch
