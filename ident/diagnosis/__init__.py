@@ -1,0 +1,9 @@
+"""Where model and measurement disagree: the discrepancy loop (``engine``), its model plug-ins (``models``), the
+candidates' screen (``screening``), result types (``result``) and the report (``report``).
+
+Kept import-light: the command line reads the defaults below without loading CasADi."""
+
+#: evaluation budget of one candidate's fit: simulations of the training part (whole logs; shorter windows count
+#: their share). A refit from the screen's step converges in 40-300 (measured: hardening 43-68, Stribeck 150-290
+#: on 7 s training parts at 5 kHz); the budget is a count, so the answer is the same on any machine.
+DEFAULT_BUDGET = 300.0

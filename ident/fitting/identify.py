@@ -48,8 +48,24 @@ class IdentificationError(RuntimeError):
     """The log cannot support the requested estimate (e.g. nothing moved)."""
 
 
-class TimeBudgetExceeded(RuntimeError):
-    """A fit ran past the wall-clock deadline its caller gave it (``OutputError.deadline``)."""
+class BudgetExceeded(RuntimeError):
+    """A fit used up the simulations its caller allowed it (``OutputError.budget``)."""
+
+
+class EvaluationBudget:
+    """Simulations a fit may run, counted in samples simulated (a simulation of ``stop`` samples costs ``stop``), so
+    that a budget means the same on any machine and for any window length; one budget can span the many problems of
+    a continuation (``fit_pipeline``). ``limit`` None: unlimited (the count is still kept)."""
+
+    def __init__(self, limit: float | None = None):
+        self.limit = limit
+        self.used = 0.0
+
+    def charge(self, samples: int) -> None:
+        """Count a simulation of ``samples`` samples; raise ``BudgetExceeded`` if the budget is spent already."""
+        if self.limit is not None and self.used + samples > self.limit:
+            raise BudgetExceeded(f"the fit used up its budget of {self.limit:.4g} simulated samples")
+        self.used += samples
 
 
 @dataclass
@@ -129,7 +145,9 @@ class OutputError:
         self.sigma_m = self.count / math.sqrt(12.0)
         self.plant = Plant(base)
         self.evaluations = 0
-        self.deadline: float | None = None  # time.monotonic() after which no further simulation is started
+        self.budget: EvaluationBudget | None = None  # simulations allowed (None: unlimited)
+        self.interrupted = False  # Ctrl-C arrived inside a simulation (CasADi wraps it into a RuntimeError)
+        self.exhausted = False    # a simulation was refused by the budget
         self._cache: dict[bytes, np.ndarray] = {}
 
     def params(self, theta: np.ndarray) -> DriveParams:
@@ -154,12 +172,23 @@ class OutputError:
         return max(float(np.sqrt(np.mean(self.residuals(theta)[:n] ** 2))) * self.sigma_l, 1e-15)
 
     def residuals(self, theta: np.ndarray) -> np.ndarray:
+        if self.interrupted:  # IPOPT may take an interrupted evaluation for a failed one and try another
+            raise KeyboardInterrupt
         key = np.asarray(theta, dtype=float).tobytes()
         if key not in self._cache:
-            self.check_time()
+            if self.budget is not None:
+                try:
+                    self.budget.charge(self.stop)
+                except BudgetExceeded:
+                    self.exhausted = True
+                    raise
             if len(self._cache) > 64:
                 self._cache.clear()
-            q_m, q_l, _ = self.simulate(np.asarray(theta, dtype=float))
+            try:
+                q_m, q_l, _ = self.simulate(np.asarray(theta, dtype=float))
+            except KeyboardInterrupt:
+                self.interrupted = True
+                raise
             self.evaluations += 1
             self._cache[key] = np.concatenate([(q_l - self.y_l) / self.sigma_l, (q_m - self.y_m) / self.sigma_m])
         return self._cache[key]
@@ -201,10 +230,12 @@ class OutputError:
         base problem has none."""
         return []
 
-    def check_time(self) -> None:
-        """Raise ``TimeBudgetExceeded`` once ``deadline`` has passed."""
-        if self.deadline is not None and time.monotonic() > self.deadline:
-            raise TimeBudgetExceeded("the fit ran out of its time budget")
+    def check_budget(self) -> None:
+        """Re-raise what stopped a fit inside a CasADi callback: Ctrl-C, or a spent ``budget``."""
+        if self.interrupted:
+            raise KeyboardInterrupt
+        if self.exhausted:
+            raise BudgetExceeded(f"the fit used up its budget of {self.budget.limit:.4g} simulated samples")
 
     def close(self) -> None:
         self.plant.close()
@@ -246,7 +277,7 @@ def _residual_callback(problem: OutputError, n: int, m: int) -> Any:
     return Res("fmu_residuals")
 
 
-def _gauss_newton_solver(res: Any, n: int, m: int, max_iter: int, max_cpu_time: float) -> Any:
+def _gauss_newton_solver(res: Any, n: int, m: int, max_iter: int) -> Any:
     """IPOPT on 0.5 |r(theta)|^2 / m with the Gauss-Newton Hessian J^T J / m (r: the callback ``res``)."""
     import casadi as ca
 
@@ -268,23 +299,23 @@ def _gauss_newton_solver(res: Any, n: int, m: int, max_iter: int, max_cpu_time: 
                       "ipopt": {"print_level": 0, "max_iter": max_iter, "tol": 1e-10, "mu_init": 1e-6,
                                 "acceptable_tol": 1e19, "acceptable_obj_change_tol": 1e-8, "acceptable_iter": 3,
                                 # backtrack fast: a failed step on a kink is not worth 40 halvings
-                                "alpha_red_factor": 0.1, "max_cpu_time": max_cpu_time,
+                                "alpha_red_factor": 0.1,
                                 "sb": "yes"}})
 
 
 def fit_ipopt(problem: OutputError, theta0: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-              max_iter: int = 40, max_cpu_time: float = 1e6) -> tuple[np.ndarray, dict[str, Any]]:
+              max_iter: int = 40) -> tuple[np.ndarray, dict[str, Any]]:
     """min 0.5 |r(theta)|^2 / m with IPOPT; r is the FMU through a CasADi callback, Hessian Gauss-Newton."""
     n, m = theta0.size, problem.residuals(theta0).size
     res = _residual_callback(problem, n, m)
-    solver = _gauss_newton_solver(res, n, m, max_iter, max_cpu_time)
+    solver = _gauss_newton_solver(res, n, m, max_iter)
     try:
         sol = solver(x0=theta0, lbx=lower, ubx=upper)
-    except RuntimeError:  # CasADi wraps an exception raised in a callback: say so if it was the deadline
-        problem.check_time()
+    except RuntimeError:  # CasADi wraps an exception raised in a callback: say so if it was Ctrl-C or the budget
+        problem.check_budget()
         raise
     # IPOPT may also take the refused evaluations for failed ones and stop early: that is not an optimum either
-    problem.check_time()
+    problem.check_budget()
     stats = solver.stats()
     return np.array(sol["x"]).ravel(), {"status": stats["return_status"], "iterations": stats["iter_count"],
                                         "cost": float(sol["f"])}
