@@ -7,3 +7,9 @@ Kept import-light: the command line reads the defaults below without loading Cas
 #: their share). A refit from the screen's step converges in 40-300 (measured: hardening 43-68, Stribeck 150-290
 #: on 7 s training parts at 5 kHz); the budget is a count, so the answer is the same on any machine.
 DEFAULT_BUDGET = 300.0
+
+#: a model whose sensor residual stays above this many times the sensor's noise (on the training or the held-back
+#: part) does not explain its log: effects it names are tentative, and where the residual sits is reported as
+#: unexplained. A model that explains its log ends at 0.98-1.02x (the noise estimate, ``identify.white_noise_std``,
+#: is itself accurate to about 2 %, measured on the independent generator's logs); 1.05 leaves room for that.
+CONFIDENT_OVER_NOISE = 1.05

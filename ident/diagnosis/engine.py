@@ -38,7 +38,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from . import DEFAULT_BUDGET
+from . import CONFIDENT_OVER_NOISE, DEFAULT_BUDGET
 from ..fitting.logs import DriveLog, LogError
 from ..protocols.batch import WorkerPool
 from .models import CandidateFit, Fitted, ModelPlugin
@@ -47,15 +47,11 @@ from .screening import SCREEN_LEVEL, ranked, screen_table
 
 #: refits per step: the best few of the screen (the screen's first-order ranking can misorder close candidates)
 MAX_REFITS = 3
-#: the held-back cost must fall by more than 1 %: the two-inertia costs are scaled by the load sensor's noise
-#: estimate, which is itself accurate to about 1 %, so a smaller gain cannot be told from a noise-level error
+#: practical significance: a named effect must remove more than 1 % of what the model leaves in the held-back data
+#: (a ratio of two costs: the noise level's scale cancels in it)
 MIN_GAIN = 1.01
 #: one-sided Diebold-Mariano level of the held-back losses
 DM_LEVEL = 0.01
-#: a final model whose residual stays above this many times the sensor noise (training or held back) does not
-#: explain the log: its named effects are tentative (a model that explains its log ends at 1.00-1.01x; 1.05 leaves
-#: 10 % of the noise power to spare)
-CONFIDENT_OVER_NOISE = 1.05
 #: a from-scratch convergence of an accepted model may use this many candidate budgets
 CONVERGE_BUDGETS = 2.0
 

@@ -48,7 +48,7 @@ from ..screening import ScoreTest, best_of_grid, partial_out, score_test
 from . import two_inertia_report as report
 from . import CandidateFit, Fitted, Magnitude, ModelPlugin
 from .coordinates import TWO_INERTIA_EFFECTS, LogScales, coordinates, fmu_values, grid, magnitude_of
-from .problem import SAME_PROPAGATOR, ModelProblem, Sensitivity, noise_floor_sigma, rms, simulate_full
+from .problem import SAME_PROPAGATOR, ModelProblem, Sensitivity, Stalled, noise_floor_sigma, rms, simulate_full
 
 HOLDBACK_FRACTION = 0.3
 #: IPOPT iterations of a drop / backward refit (a candidate's refit runs until its budget is spent)
@@ -272,8 +272,7 @@ class TwoInertiaPlugin(ModelPlugin):
             lo, hi = problem.bounds()
             heads = [np.concatenate([st.theta, x]), np.concatenate([st.theta + test.step, x])]
             head = min((np.clip(h, lo, hi) for h in heads), key=problem.cost)
-            theta, _ = fit_ipopt(problem, head, lo, hi, _iterations(meter, head.size, self.stop))
-            return theta
+            return _ipopt_or_best(problem, head, lo, hi, _iterations(meter, head.size, self.stop))
         finally:
             problem.close()
 
@@ -412,8 +411,17 @@ class TwoInertiaPlugin(ModelPlugin):
 
 # ------------------------------------------------------------------------------------------- helpers -----------
 
-#: residual RMS over the load sensor's noise at or below which nothing is left to explain (see the engine)
-NOISE_FLOOR = 1.01
+def _ipopt_or_best(problem: ModelProblem, head: np.ndarray, lo: np.ndarray, hi: np.ndarray, max_iter: int
+                   ) -> np.ndarray:
+    """IPOPT from ``head``; a fit that stalls (``ModelProblem.stall_after``: three iterations' simulations without
+    progress) ends at the best point it simulated. A spent budget raises ``BudgetExceeded``."""
+    problem.stall_after = 3 * (head.size + 2)
+    try:
+        theta, _ = fit_ipopt(problem, head, lo, hi, max_iter)
+    except Stalled:
+        pass
+    # every iterate IPOPT returns was simulated, so the best point simulated is at least as good
+    return problem.best[1] if problem.best is not None else theta
 
 
 def _iterations(meter: EvaluationBudget, n: int, stop: int) -> int:

@@ -12,6 +12,7 @@ import pandas as pd
 from ...common.plotting import figure, save
 from ...fitting.logs import DriveLog
 from ...model.params import DriveParams
+from .. import CONFIDENT_OVER_NOISE
 from ..result import DiagnosisStep
 
 #: a regime holds structure when its share of the residual energy is this many times its share of the samples ...
@@ -65,9 +66,7 @@ def _masks(log: DriveLog, sim: dict[str, np.ndarray], f_m: float) -> dict[str, n
 def unexplained(table: pd.DataFrame, over_noise: float) -> list[dict[str, Any]]:
     """Regimes still holding structure when the model is above the noise (``over_noise``: its residual RMS over the
     load sensor's noise, the larger of training and held-back)."""
-    from .two_inertia import NOISE_FLOOR
-
-    if over_noise <= NOISE_FLOOR or table.empty:
+    if over_noise <= CONFIDENT_OVER_NOISE or table.empty:
         return []
     out = []
     for row in table.itertuples():  # ranked by excess; a regime holding no more than its share is not "where"
