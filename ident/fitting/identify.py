@@ -277,7 +277,33 @@ def _residual_callback(problem: OutputError, n: int, m: int) -> Any:
     return Res("fmu_residuals")
 
 
-def _gauss_newton_solver(res: Any, n: int, m: int, max_iter: int) -> Any:
+def _stop_callback(n: int, stop: Callable[[], bool]) -> Any:
+    """An IPOPT iteration callback that ends the solve (``User_Requested_Stop``) once ``stop()`` is true: a caller's
+    budget in evaluations, checked between iterations rather than by raising inside a simulation."""
+    import casadi as ca
+
+    class Stop(ca.Callback):
+        def __init__(self) -> None:
+            ca.Callback.__init__(self)
+            self.construct("stop", {})
+
+        def get_n_in(self): return ca.nlpsol_n_out()
+        def get_n_out(self): return 1
+        def get_name_in(self, i): return ca.nlpsol_out(i)
+        def get_name_out(self, i): return "stop"
+
+        def get_sparsity_in(self, i):
+            name = ca.nlpsol_out(i)
+            if name == "f":
+                return ca.Sparsity.scalar()
+            return ca.Sparsity.dense(n) if name in ("x", "lam_x") else ca.Sparsity(0, 0)
+
+        def eval(self, arg): return [1 if stop() else 0]
+
+    return Stop()
+
+
+def _gauss_newton_solver(res: Any, n: int, m: int, max_iter: int, stop: Any = None) -> Any:
     """IPOPT on 0.5 |r(theta)|^2 / m with the Gauss-Newton Hessian J^T J / m (r: the callback ``res``)."""
     import casadi as ca
 
@@ -287,8 +313,9 @@ def _gauss_newton_solver(res: Any, n: int, m: int, max_iter: int) -> Any:
     jr = ca.jacobian(r, x)
     lam_f, lam_g, p = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", 0), ca.MX.sym("p", 0)
     hess = ca.Function("nlp_hess_l", [x, p, lam_f, lam_g], [ca.triu(lam_f * ca.mtimes(jr.T, jr) / m)])
+    extra = {} if stop is None else {"iteration_callback": stop}
     return ca.nlpsol("output_error", "ipopt", {"x": x, "f": f},
-                     {"hess_lag": hess, "print_time": False,
+                     {**extra, "hess_lag": hess, "print_time": False,
                       # The exact model's cost has micro-steps where a marginal stick/slip decision flips (a
                       # 1e-6 relative change of a parameter can reorder one event): stop once the objective no
                       # longer changes rather than insisting on a gradient below the finite-difference noise:
@@ -304,11 +331,13 @@ def _gauss_newton_solver(res: Any, n: int, m: int, max_iter: int) -> Any:
 
 
 def fit_ipopt(problem: OutputError, theta0: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-              max_iter: int = 40) -> tuple[np.ndarray, dict[str, Any]]:
-    """min 0.5 |r(theta)|^2 / m with IPOPT; r is the FMU through a CasADi callback, Hessian Gauss-Newton."""
+              max_iter: int = 40, stop: Callable[[], bool] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+    """min 0.5 |r(theta)|^2 / m with IPOPT; r is the FMU through a CasADi callback, Hessian Gauss-Newton.
+    ``stop``: checked after every iteration; true ends the fit at that iterate (a caller's evaluation budget)."""
     n, m = theta0.size, problem.residuals(theta0).size
     res = _residual_callback(problem, n, m)
-    solver = _gauss_newton_solver(res, n, m, max_iter)
+    stopper = None if stop is None else _stop_callback(n, stop)
+    solver = _gauss_newton_solver(res, n, m, max_iter, stopper)
     try:
         sol = solver(x0=theta0, lbx=lower, ubx=upper)
     except RuntimeError:  # CasADi wraps an exception raised in a callback: say so if it was Ctrl-C or the budget

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from ...fitting.identify import BudgetExceeded, EvaluationBudget, OutputError
+from ...fitting.identify import EvaluationBudget, OutputError
 from ...fitting.logs import DriveLog
 from ...model.params import DriveParams
 from ...model.plant import Plant
@@ -27,8 +27,6 @@ SAME_PROPAGATOR = {"viscous_asymmetry": 0.5}
 STALL_TOL = 1e-8
 
 
-class Stalled(BudgetExceeded):
-    """A fit stopped improving (``ModelProblem.stall_after``); its best point is the result."""
 
 
 Sensitivity = dict[str, dict[str, float]]   # effect -> coordinate -> scale (see ``coordinates.coordinates``)
@@ -55,15 +53,11 @@ class ModelProblem(OutputError):
         self.coords = [c for _, cs in self.blocks for c in cs]
         self.fixed = dict(fixed or {})
         self.budget = budget
-        self.stall_after: int | None = None   # simulations without progress that end a fit (None: never)
         self.best: tuple[float, np.ndarray] | None = None   # the lowest cost simulated and its point
         self.since_best = 0
-        self.stalled = False
 
     def residuals(self, theta: np.ndarray) -> np.ndarray:
-        """``OutputError.residuals``, keeping the best point simulated and stopping a fit that stalls."""
-        if self.stalled:
-            raise Stalled("the fit stopped improving")
+        """``OutputError.residuals``, keeping the best point simulated and how long ago it was found."""
         before = self.evaluations
         r = super().residuals(theta)
         if self.evaluations > before:  # a new simulation (not a cached one)
@@ -72,15 +66,16 @@ class ModelProblem(OutputError):
                 self.best, self.since_best = (cost, np.array(theta, dtype=float)), 0
             else:
                 self.since_best += 1
-            if self.stall_after is not None and self.since_best >= self.stall_after:
-                self.stalled = True
-                raise Stalled(f"the fit stopped improving ({self.since_best} simulations without progress)")
         return r
 
-    def check_budget(self) -> None:
-        super().check_budget()
-        if self.stalled:
-            raise Stalled("the fit stopped improving")
+    def stalled(self, after: int) -> bool:
+        """No simulation has lowered the best cost (by more than ``STALL_TOL``) for ``after`` simulations."""
+        return self.since_best >= after
+
+    def spent(self, reserve: int) -> bool:
+        """The budget cannot pay for ``reserve`` more simulations (an iteration's worth)."""
+        b = self.budget
+        return b is not None and b.limit is not None and b.used + reserve * self.stop > b.limit
 
     @classmethod
     def maker(cls, effects: tuple[str, ...], scales: LogScales, budget: EvaluationBudget | None = None,

@@ -48,7 +48,7 @@ from ..screening import ScoreTest, best_of_grid, partial_out, score_test
 from . import two_inertia_report as report
 from . import CandidateFit, Fitted, Magnitude, ModelPlugin
 from .coordinates import TWO_INERTIA_EFFECTS, LogScales, coordinates, fmu_values, grid, magnitude_of
-from .problem import SAME_PROPAGATOR, ModelProblem, Sensitivity, Stalled, noise_floor_sigma, rms, simulate_full
+from .problem import SAME_PROPAGATOR, ModelProblem, Sensitivity, noise_floor_sigma, rms, simulate_full
 
 HOLDBACK_FRACTION = 0.3
 #: IPOPT iterations of a drop / backward refit (a candidate's refit runs until its budget is spent)
@@ -272,7 +272,7 @@ class TwoInertiaPlugin(ModelPlugin):
             lo, hi = problem.bounds()
             heads = [np.concatenate([st.theta, x]), np.concatenate([st.theta + test.step, x])]
             head = min((np.clip(h, lo, hi) for h in heads), key=problem.cost)
-            return _ipopt_or_best(problem, head, lo, hi, _iterations(meter, head.size, self.stop))
+            return _ipopt_or_best(problem, head, lo, hi)
         finally:
             problem.close()
 
@@ -308,14 +308,14 @@ class TwoInertiaPlugin(ModelPlugin):
             return self._rigid()
         effects = tuple(e for e in model.effects if e != name)
         keep = [*range(4), *(4 + i for i, c in enumerate(_layout(model)) if c.effect != name)]
-        problem = st.problem(self.full, effects, self.stop, self.sigma,
+        problem = st.problem(self.full, effects, self.stop, self.sigma, central=False,
                              budget=EvaluationBudget(None if budget is None else budget * self.stop))
         try:
             theta0 = st.theta[keep]
             try:
-                theta, _ = fit_ipopt(problem, theta0, *problem.bounds(), REFIT_ITER)
+                theta = _ipopt_or_best(problem, theta0, *problem.bounds(), REFIT_ITER)
             except BudgetExceeded:
-                theta = theta0
+                theta = problem.best[1] if problem.best is not None else theta0
         finally:
             problem.close()
         return self.evaluate(effects, theta, st.base, st.scales, sens=st.sens)
@@ -411,25 +411,18 @@ class TwoInertiaPlugin(ModelPlugin):
 
 # ------------------------------------------------------------------------------------------- helpers -----------
 
-def _ipopt_or_best(problem: ModelProblem, head: np.ndarray, lo: np.ndarray, hi: np.ndarray, max_iter: int
-                   ) -> np.ndarray:
-    """IPOPT from ``head``; a fit that stalls (``ModelProblem.stall_after``: three iterations' simulations without
-    progress) ends at the best point it simulated. A spent budget raises ``BudgetExceeded``."""
-    problem.stall_after = 3 * (head.size + 2)
-    try:
-        theta, _ = fit_ipopt(problem, head, lo, hi, max_iter)
-    except Stalled:
-        pass
-    # every iterate IPOPT returns was simulated, so the best point simulated is at least as good
+def _ipopt_or_best(problem: ModelProblem, head: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                   max_iter: int = 500) -> np.ndarray:
+    """IPOPT from ``head``, checked between iterations: a fit that stalls (three iterations' simulations without
+    progress, ``ModelProblem.stalled``) ends there; one whose budget cannot pay for another iteration raises
+    ``BudgetExceeded``. The result is the best point simulated (every iterate IPOPT returns was simulated)."""
+    per_iteration = head.size + 2
+    theta, _ = fit_ipopt(problem, head, lo, hi, max_iter,
+                         stop=lambda: problem.stalled(3 * per_iteration) or problem.spent(per_iteration))
+    if problem.spent(per_iteration) and not problem.stalled(3 * per_iteration):
+        raise BudgetExceeded(f"the fit used up its budget of {problem.budget.limit / problem.stop:.4g} simulations "
+                             "before it converged")
     return problem.best[1] if problem.best is not None else theta
-
-
-def _iterations(meter: EvaluationBudget, n: int, stop: int) -> int:
-    """IPOPT iterations that the budget's remaining simulations allow (a forward-difference Jacobian and about two
-    trial points each), so that a fit normally stops by its iteration count, not in mid-iteration."""
-    if meter.limit is None:
-        return 200
-    return max(1, int((meter.limit - meter.used) / stop / (n + 2)))
 
 
 def _fmu_effects(effects: tuple[str, ...]) -> tuple[str, ...]:
