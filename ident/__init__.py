@@ -34,7 +34,7 @@ from .protocols.resolution import (
 
 # Imported on first use: they pull in CasADi and SciPy's optimisation and statistics.
 _LAZY = {"DriveLog": "fitting.logs", "LogError": "fitting.logs", "read_log": "fitting.logs", "write_log": "fitting.logs",
-         "identify": "fitting.identify", "TwoInertiaFit": "fitting.identify", "predict": "fitting.predict",
+         "identify": "fitting.identify", "TwoInertiaFit": "fitting.result", "predict": "fitting.predict",
          "Prediction": "fitting.predict", "diagnose": "diagnosis.engine", "Diagnosis": "diagnosis.result",
          "FrictionSweep": "protocols.sweep", "friction_sweep": "protocols.sweep"}
 

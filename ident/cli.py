@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from typing import Any, Sequence
 
@@ -124,7 +125,7 @@ def _identified(args: argparse.Namespace) -> tuple[object, dict]:
     from .fitting.identify import identify
 
     log = _read(args)
-    fit = identify(log, model=args.model, progress=not args.json)
+    fit = identify(log, model=args.model, progress=True, verbose=getattr(args, "verbose", False))
     if args.model == "rigid":
         from .fitting.rigid import rigid_warnings
 
@@ -136,10 +137,42 @@ def _identified(args: argparse.Namespace) -> tuple[object, dict]:
                    warnings=rigid_warnings(fit),
                    covariance="ci95: residual-based (Newey-West) sandwich; ci95_ls: noise-only LS")
         return fit, out
+    if not fit.identifiable:
+        args.exit_code = EXIT_NOT_IDENTIFIABLE
     return fit, fit.to_dict()
 
 
-def cmd_identify(args: argparse.Namespace) -> dict:
+def _print_fit(out: dict) -> None:
+    """The fit as text: values with intervals, the identifiability verdict, the noise, data checks, warnings."""
+    for name, v in out.items():
+        if isinstance(v, dict) and "ci95" in v:
+            if v["value"] is None:
+                line = f"{name:10s} no result"
+            else:
+                line = f"{name:10s} {v['value']:.6g}  95 % [{v['ci95'][0]:.6g}, {v['ci95'][1]:.6g}]"
+            print(line + ("" if v.get("identifiable", True) else "  NOT IDENTIFIABLE: " + v["reason"]))
+    if "identifiable" in out:
+        print("identifiable: " + ("yes, all three" if out["identifiable"] else "NO") +
+              (f" -- to fix: {out['fix']}" if out.get("fix") else ""))
+        print(f"load sensor noise: {out['sigma_load_rad']:.4g} rad; residual "
+              f"{out['fit']['residual_over_noise']:.3f}x the noise")
+    for c in out.get("data_checks", []):
+        if c["status"] != "ok":
+            print(f"data check {c['check']}: {c['status']}: {c['detail']}")
+    for w in out["warnings"]:
+        print(f"warning: {w}")
+
+
+def _single_log(args: argparse.Namespace) -> bool:
+    from pathlib import Path
+
+    return len(args.logs) == 1 and not Path(args.logs[0]).is_dir()
+
+
+def cmd_identify(args: argparse.Namespace) -> Any:
+    if not _single_log(args):
+        return _identify_many(args)
+    args.log = args.logs[0]
     fit, out = _identified(args)
     if args.out and args.model != "rigid":
         from pathlib import Path
@@ -147,13 +180,30 @@ def cmd_identify(args: argparse.Namespace) -> dict:
         Path(args.out).mkdir(parents=True, exist_ok=True)
         out["png"] = str(fit.plot(Path(args.out) / "identify.png"))
     if not args.json:
-        for name, v in out.items():
-            if isinstance(v, dict) and "ci95" in v:
-                print(f"{name:10s} {v['value']:.6g}  95 % [{v['ci95'][0]:.6g}, {v['ci95'][1]:.6g}]")
-        print(f"fit: {out['fit']}")
-        for w in out["warnings"]:
-            print(f"warning: {w}")
+        _print_fit(out)
     return out
+
+
+def _identify_many(args: argparse.Namespace) -> Any:
+    """Several logs or folders: one row per log on Dask, a table (CSV + JSON) in ``--out``."""
+    from .fitting.batch import collect_logs, identify_many, write_table
+
+    if args.model != "two-inertia":
+        raise ValueError("several logs at once: only the two-inertia model (--model two-inertia)")
+    if not args.out:
+        raise ValueError("several logs at once: give --out DIR for the table (identify.csv, identify.json)")
+    paths = collect_logs(args.logs)
+    table = identify_many(paths, args.meta, scheduler=args.scheduler, workers=args.workers, progress=True)
+    files = write_table(table, args.out)
+    if not table["identifiable"].all():
+        args.exit_code = EXIT_NOT_IDENTIFIABLE
+    if not args.json:
+        cols = ["log", "status", "identifiable", "K_star", "J_l_star", "f_l_star"]
+        print(table[cols].to_string(index=False))
+        print(f"wrote {files['csv']} and {files['json']}")
+    import json as _json
+
+    return {"logs": _json.loads(table.to_json(orient="records")), **files}
 
 
 def cmd_predict(args: argparse.Namespace) -> dict:
@@ -162,13 +212,22 @@ def cmd_predict(args: argparse.Namespace) -> dict:
     if args.model != "two-inertia":
         raise ValueError("prediction needs the two-inertia model (K*, J_l*, f_l*): a load sensor in the log")
     fit, out = _identified(args)
+    if not fit.identifiable:
+        out["prediction"] = None
+        out["refused"] = ("no prediction: the log does not identify all three parameters (see their reasons); "
+                          "a resolution from unidentified parameters would be a guess")
+        if not args.json:
+            _print_fit(out)
+            print(out["refused"])
+        return out
     pred = predict(fit, n_draws=args.draws, n_pulses=args.pulses, n_steps=args.steps, workers=args.workers,
-                   scheduler=args.scheduler, progress=not args.json)
+                   scheduler=args.scheduler, progress=True)
     out.update(pred.to_dict())
     if not args.json:
+        _print_fit(out)
         print(f"impulse resolution {pred.impulse_resolution_um:.4f} um (95 % {pred.impulse_ci95_um[0]:.4f} - "
               f"{pred.impulse_ci95_um[1]:.4f}); linear {pred.linear_resolution_um:.3f} um "
-              f"({pred.linear_counts} counts)")
+              f"(95 % {pred.linear_ci95_um[0]:.3f} - {pred.linear_ci95_um[1]:.3f}; {pred.linear_counts} counts)")
     return out
 
 
@@ -210,6 +269,36 @@ def cmd_paper_effects(args: argparse.Namespace) -> dict:
         print(summary[cols].to_string(index=False, float_format=lambda v: f"{v:.3g}"))
         print(f"wrote {report}")
     return {"report": str(report), "summary": json.loads(summary.to_json(orient="records"))}
+
+
+def cmd_design_experiment(args: argparse.Namespace) -> dict:
+    from pathlib import Path
+
+    from .common.output import staged_folder
+    from .fitting.design import design_experiment
+    from .fitting.logs import read_sidecar
+
+    meta = read_sidecar(args.meta)
+    ranges = {name: (float(v[0]), float(v[1])) for name, v in
+              (("K_star", args.K_star), ("J_l_star", args.J_l_star), ("f_l_star", args.f_l_star)) if v}
+    design = design_experiment(meta, ranges=ranges, max_torque=args.max_torque, max_travel=args.max_travel,
+                               duration_s=args.duration, noise_m=args.noise_m,
+                               progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    out = design.to_dict()
+    with staged_folder(args.out, last="design.json") as stage:
+        design.to_frame().to_csv(stage / "schedule.csv", index=False, float_format="%.17g")
+        design.bounds.to_csv(stage / "bounds.csv", index=False)
+        (stage / "design.json").write_text(json.dumps(out, indent=2) + "\n")
+    files = {name: str(Path(args.out) / name) for name in ("schedule.csv", "bounds.csv", "design.json")}
+    if not args.json:
+        b = design.block
+        print(f"block ({b.seconds():.3f} s, repeated): +-{b.pulse_star:g} f_m pulses of {b.width_s * 1e3:g} ms, "
+              + (f"+-{b.move_star:g} f_m moves held {b.hold_s * 1e3:g} ms, " if b.move_star else "no moves, ")
+              + f"rests of {b.rest_s:g} s")
+        print("worst relative bound over the range (1 sigma): "
+              + ", ".join(f"{k} {v:.2e}" for k, v in design.worst().items()))
+        print(f"wrote {files['schedule.csv']} (time_s, motor_torque_Nm), {files['bounds.csv']}, {files['design.json']}")
+    return {**out, "files": files}
 
 
 def cmd_emps_report(args: argparse.Namespace) -> dict:
@@ -292,15 +381,29 @@ def _add_study(sub: Any) -> None:
 
 
 def _add_identify(sub: Any) -> None:
-    p = sub.add_parser("identify", help="estimate the drive's parameters from a log (CasADi + IPOPT, exact model)")
-    _add_log_options(p)
-    p.add_argument("--out", help="also write a plot of measured vs fitted load angle here")
+    p = sub.add_parser("identify", help="estimate the drive's parameters from a log (CasADi + IPOPT, exact model); "
+                       "several logs or folders: one table, on Dask",
+                       epilog="exit codes: 0 identified; 3 a parameter is not identifiable from the log (the JSON "
+                              "says which and why); 2 bad input; 130 interrupted")
+    p.add_argument("logs", nargs="+", metavar="LOG",
+                   help="log file(s) (CSV or Parquet with a JSON sidecar, physics.md section 4, or EMPS .mat) or "
+                        "folders of logs")
+    p.add_argument("--meta", help="JSON sidecar (default: LOG.json or meta.json beside it)")
+    p.add_argument("--model", choices=("two-inertia", "rigid"), default="two-inertia")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--verbose", action="store_true", help="also show IPOPT's own output")
+    p.add_argument("--out", help="one log: also write a plot of measured vs fitted load angle here; several: the "
+                                 "table identify.csv / identify.json (required)")
+    _add_batch_options(p)
     p.set_defaults(func=cmd_identify)
 
 
 def _add_predict(sub: Any) -> None:
-    p = sub.add_parser("predict", help="identify, then predict impulse and linear resolution with 95 %% intervals")
+    p = sub.add_parser("predict", help="identify, then predict impulse and linear resolution with 95 %% intervals",
+                       epilog="exit codes: 0 predicted; 3 refused: a parameter is not identifiable from the log; "
+                              "2 bad input; 130 interrupted")
     _add_log_options(p)
+    p.add_argument("--verbose", action="store_true", help="also show IPOPT's own output")
     p.add_argument("--draws", type=int, default=20, help="parameter draws for the interval (default 20)")
     p.add_argument("--pulses", type=int, default=1000, help="pulses per impulse experiment (default 1000)")
     p.add_argument("--steps", type=int, default=1000, help="measured PD steps (default 1000)")
@@ -347,25 +450,142 @@ def _add_emps_report(sub: Any) -> None:
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_emps_report)
 
+def _add_design_experiment(sub: Any) -> None:
+    p = sub.add_parser("design-experiment", help="a torque schedule that identifies K*, J_l*, f_l* over a range of "
+                       "drives (robust prior-averaged D-optimal design), with the bounds it achieves")
+    p.add_argument("--meta", required=True, help="JSON sidecar with the known drive data (physics.md section 4)")
+    p.add_argument("--max-torque", type=float, required=True, help="largest motor torque allowed [N m]")
+    p.add_argument("--max-travel", type=float, required=True, help="largest load (joint) travel allowed [rad]")
+    p.add_argument("--duration", type=float, required=True, help="length of the experiment [s]")
+    p.add_argument("--noise-m", type=float, default=5e-9,
+                   help="load sensor noise at the arm tip [m] for the reported bounds (default 5e-9)")
+    for name, (lo, hi) in (("K-star", (1e5, 1e7)), ("J-l-star", (500, 1e4)), ("f-l-star", (0.01, 1))):
+        p.add_argument(f"--{name}", type=float, nargs=2, metavar=("LOW", "HIGH"),
+                       help=f"range of {name.replace('-', '_').replace('_star', '*')} (default {lo:g} {hi:g})")
+    p.add_argument("--out", required=True, help="output folder: schedule.csv, bounds.csv, design.json")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=cmd_design_experiment)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="hdrive", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     for add in (_add_build_fmu, _add_demo, _add_resolution, _add_sweep, _add_study, _add_identify, _add_predict,
-                _add_diagnose, _add_paper_effects, _add_emps_report):
+                _add_diagnose, _add_paper_effects, _add_emps_report, _add_design_experiment):
         add(sub)
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+# Smallest value of each numeric option, checked before any work starts (option -> minimum; per command where a
+# command allows less, e.g. diagnose --pulses 0 skips the predicted resolution).
+_MINIMA: dict[str, float] = {"workers": 0, "draws": 2, "pulses": 1, "steps": 1, "levels": 2, "max_effects": 1,
+                             "candidate_budget": 0}
+_MINIMA_BY_COMMAND: dict[tuple[str, str], float] = {("diagnose", "pulses"): 0}
+_POSITIVE = ("eps1_um", "amplitude", "max_torque", "max_travel", "duration", "noise_m")
+
+
+EXIT_BAD_INPUT = 2
+EXIT_NOT_IDENTIFIABLE = 3
+
+
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread so that every ``finally`` runs (staging folders, unpacked FMUs, Dask
+    workers are cleaned up) before the process exits with 143."""
+
+
+def _on_sigterm(signum: int, frame: Any) -> None:
+    raise Terminated()
+
+
+def preflight(args: argparse.Namespace) -> None:
+    """Everything about the command line that can be checked before the work starts: numeric options in range, the
+    output folder writable, the Dask scheduler reachable. ValueError naming the option and the allowed range."""
+    import math
+
+    for name, value in vars(args).items():
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            continue
+        flag = "--" + name.replace("_", "-")
+        if not math.isfinite(value):
+            raise ValueError(f"{flag} = {value!r}: must be a finite number")
+        low = _MINIMA_BY_COMMAND.get((args.command, name), _MINIMA.get(name))
+        if low is not None and value < low:
+            raise ValueError(f"{flag} = {value!r}: must be >= {low:g}")
+        if name in _POSITIVE and value <= 0:
+            raise ValueError(f"{flag} = {value!r}: must be > 0")
+    if getattr(args, "out", None):
+        from .common.output import check_output_dir
+
+        check_output_dir(args.out)
+    if getattr(args, "scheduler", None):
+        from .protocols.batch import connect
+
+        connect(args.scheduler).close()
+
+
+def run(args: argparse.Namespace) -> tuple[int, Any]:
+    """(exit code, result): 0 with the command's result, 3 with it when a parameter is not identifiable from the
+    log (identify, predict), 2 for bad input or a named failure, 130 / 143 when interrupted, 1 for an internal error
+    (a bug: its traceback only with HDRIVE_TRACEBACK=1)."""
+    import os
+
+    from .common.output import OutputDirError
+    from .fitting.logs import LogError
+    from .protocols.batch import BatchError
+
+    say = lambda msg: print(f"hdrive {args.command}: {msg}", file=sys.stderr)  # noqa: E731
     try:
+        preflight(args)
         result = args.func(args)
-    except (ParameterError, ValueError, ThresholdNotFound, NoConsistentStep, SettleError, RuntimeError) as exc:
-        print(f"hdrive {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    if args.json:
-        print(json.dumps(result, indent=2))
-    return 0
+        return getattr(args, "exit_code", 0), result
+    except KeyboardInterrupt:
+        say("interrupted (Ctrl-C); no output was left half-written")
+        return 130, None
+    except Terminated:
+        say("terminated (SIGTERM); no output was left half-written")
+        return 143, None
+    except (ParameterError, LogError, OutputDirError, BatchError, ValueError, ThresholdNotFound, NoConsistentStep,
+            SettleError, RuntimeError, OSError) as exc:
+        say(f"error: {exc}")
+        checks = getattr(exc, "checks", None)  # a failed data check: every check's result, for --json
+        return EXIT_BAD_INPUT, ({"error": str(exc), "data_checks": checks} if checks is not None else None)
+    except Exception as exc:  # a bug, not bad input
+        if os.environ.get("HDRIVE_TRACEBACK"):
+            raise
+        say(f"internal error: {type(exc).__name__}: {exc} (please report it; HDRIVE_TRACEBACK=1 shows where)")
+        return 1, None
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    import signal
+
+    args = build_parser().parse_args(argv)
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        code, result = run(args)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    if result is not None and args.json:
+        print(json.dumps(result, indent=2, default=_json_default))
+    if code in (130, 143) and argv is None and "distributed" not in sys.modules:
+        # the command line without Dask: everything open was closed on the way out (FMU folders, staged files);
+        # skip the interpreter's teardown of numpy, pandas and CasADi (measured 2-3 s on a loaded machine). With
+        # Dask the normal exit stays: its worker processes' resources are released by the interpreter's exit.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code
+
+
+def _json_default(value: Any) -> Any:
+    """numpy scalars and arrays in results (e.g. the start's numbers) as plain JSON."""
+    import numpy as np
+
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON serializable")
 
 
 if __name__ == "__main__":

@@ -207,8 +207,20 @@ def test_irregular_time_against_the_median(tmp_path):
 def test_time_against_the_sample_rate(tmp_path):
     path = write_csv(tmp_path, rows(), meta={**META, "sample_rate_hz": 500.0})
     msg = read_error(path)
-    assert "run.csv: column time_s, row 2: irregular time: interval 0.001 s from row 1" in msg
-    assert "expected 0.002 s (1/sample_rate_hz (500 Hz))" in msg
+    assert "run.csv: sample rate: the sidecar says sample_rate_hz = 500 Hz, the column time_s runs at 1000 Hz" in msg
+
+
+@pytest.mark.parametrize("rel, ok", [(0.008, False), (2e-4, False), (5e-5, True)])
+def test_sample_rate_against_the_time_column(tmp_path, rel, ok):
+    """Issue 21: a sidecar rate 0.8 % off the time column is an error naming both numbers; any mismatch above 1e-4
+    relative is; below it is accepted."""
+    path = write_csv(tmp_path, rows(), meta={**META, "sample_rate_hz": RATE * (1 + rel)})
+    if ok:
+        assert read_log(path).n == 12
+        return
+    msg = read_error(path)
+    assert f"sample_rate_hz = {RATE * (1 + rel):.10g} Hz, the column time_s runs at 1000 Hz" in msg
+    assert f"relative difference {rel / (1 + rel):.3g} > 0.0001" in msg
 
 
 def test_parquet_bad_cells_and_columns(tmp_path):
@@ -265,7 +277,11 @@ def test_missing_required_key(tmp_path, key):
     ("r", 0, "is unphysical: must be > 0"),
     ("r", -0.01, "is unphysical: must be > 0"),
     ("J_m_kgm2", 0.0, "is unphysical: must be > 0"),
-    ("f_m_Nm", -0.001, "is unphysical: must be >= 0"),
+    ("f_m_Nm", -0.001, "is unphysical: must be > 0"),
+    ("f_m_Nm", 0, "is unphysical: must be > 0"),
+    ("r", 100, "is outside the range the plant accepts [1e-06, 1]"),
+    ("J_m_kgm2", 1e-300, "kg.m2 is outside the range the plant accepts [1e-12, 1000] kg.m2"),
+    ("encoder_counts_per_rev", 2**40, "is outside the range the plant accepts [1, 2147483647]"),
     ("arm_length_m", 0, "is unphysical: must be > 0"),
     ("encoder_counts_per_rev", 0, "is unphysical: must be >= 1"),
     ("encoder_counts_per_rev", 100.5, "is not an integer"),
@@ -276,6 +292,19 @@ def test_missing_required_key(tmp_path, key):
 def test_invalid_meta_values(tmp_path, key, value, problem):
     msg = read_error(write_csv(tmp_path, rows(), meta={**META, key: value}))
     assert f"sidecar {tmp_path / 'run.json'}" in msg and f"key '{key}' = {value!r} {problem}" in msg
+
+
+def test_a_repeated_column_is_refused(tmp_path):
+    path = write_csv(tmp_path, [r + ["1"] for r in rows()], header=HEADER + ",motor_torque_Nm")
+    assert "column motor_torque_Nm appears more than once in the header" in read_error(path)
+
+
+@pytest.mark.parametrize("column, value", [("motor_torque_Nm", 1e300), ("load_pos_rad", -2e6)])
+def test_a_value_the_plant_cannot_take_names_its_row(tmp_path, column, value):
+    data = rows()
+    data[4][HEADER.split(",").index(column)] = repr(value)
+    msg = read_error(write_csv(tmp_path, data))
+    assert f"column {column}, row 5: {value:g} is outside the range the plant accepts [-1e+06, 1e+06]" in msg, msg
 
 
 def test_meta_values_are_typed(tmp_path):

@@ -109,7 +109,7 @@ def test_failed_study_leaves_no_report(tmp_path: Path, monkeypatch) -> None:
 
 
 @pytest.mark.parametrize("args,message", [
-    (["resolution", "--controller", "impulse", "--pulses", "0"], "n_pulses = 0 must be >= 1"),
+    (["resolution", "--controller", "impulse", "--pulses", "0"], "--pulses = 0: must be >= 1"),
     (["resolution", "--controller", "linear", "--param", "K=1"], "unknown drive parameter 'K'"),
     (["resolution", "--controller", "impulse", "--fl-star", "-1"], "f_l"),
     (["resolution", "--controller", "impulse", "--eps1-um", "1e5", "--pulses", "5"],

@@ -10,6 +10,28 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 
+class OutputDirError(ValueError):
+    """An output folder that cannot be written: the message names the path and the reason."""
+
+
+def check_output_dir(out_dir: str | Path, option: str = "--out") -> Path:
+    """Check, before any work, that ``out_dir`` is (or can become) a writable folder: not an existing file, and
+    its nearest existing ancestor a folder where files can be created (a probe file is made and removed there)."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise OutputDirError(f"{option} {out}: exists and is not a folder")
+    base = out if out.exists() else next((a for a in out.parents if a.exists()), Path("."))
+    if not base.is_dir():
+        raise OutputDirError(f"{option} {out}: {base} is not a folder, so {out} cannot be created")
+    try:
+        fd, probe = tempfile.mkstemp(dir=base, prefix=".hdrive-probe-")
+    except OSError as exc:
+        raise OutputDirError(f"{option} {out}: cannot write in {base}: {exc.strerror or exc}") from None
+    os.close(fd)
+    os.unlink(probe)
+    return out
+
+
 def atomic_write(path: Path, write: Callable[[Path], object]) -> None:
     """``write`` a temporary file beside ``path``, then rename it onto ``path`` (never a half-written file)."""
     fd, name = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=f".tmp-{path.name}")

@@ -30,6 +30,7 @@ META_KEYS = ("r", "J_m_kgm2", "f_m_Nm", "arm_length_m", "encoder_counts_per_rev"
 REQUIRED_COLUMNS = COLUMNS[:3]
 MIN_SAMPLES = 10
 TIME_TOLERANCE = 0.01            # allowed relative deviation of a sample interval (from the median and 1/rate)
+RATE_TOLERANCE = 1e-4            # allowed relative difference of the sidecar's rate and the time column's
 PARQUET_SUFFIXES = (".parquet", ".pq")
 SI_UNITS = {   # DriveLog.kind -> column -> its SI unit (the only unit a sidecar may declare for it)
     "rotary": {"time_s": "s", "motor_torque_Nm": "N.m", "motor_pos_rad": "rad", "load_pos_rad": "rad"},
@@ -162,9 +163,34 @@ def _numeric_columns(frame: pd.DataFrame, where: str) -> dict[str, np.ndarray]:
     if missing:
         raise LogError(f"{where}: missing required column(s) {', '.join(missing)}; "
                        f"found: {', '.join(map(str, frame.columns)) or '(none)'}")
+    duplicated = [c for c in COLUMNS if f"{c}.1" in frame.columns]   # pandas renames a repeated header X to X.1
+    if duplicated:
+        raise LogError(f"{where}: column {duplicated[0]} appears more than once in the header; keep one")
     if len(frame) < MIN_SAMPLES:
         raise LogError(f"{where}: too few samples: {len(frame)} data row(s), need at least {MIN_SAMPLES}")
-    return {c: _numeric(frame[c], c, where) for c in COLUMNS if c in frame.columns}
+    columns = {c: _numeric(frame[c], c, where) for c in COLUMNS if c in frame.columns}
+    for name, limit in _plant_limits().items():
+        if name in columns:
+            _check_magnitude(columns[name], name, limit, where)
+    return columns
+
+
+def _plant_limits() -> dict[str, float]:
+    """Largest magnitude the plant FMU accepts for each signal column (its variable table: the input's range and the
+    initial angles' range): a larger value cannot be a measurement of this kind of drive, and would only overflow a
+    simulation later without naming the row."""
+    from fmu_build import variables as V
+
+    angle = V.BY_NAME["q_m_start"].hi
+    return {"motor_torque_Nm": V.BY_NAME["motor_torque"].hi, "motor_pos_rad": angle, "load_pos_rad": angle}
+
+
+def _check_magnitude(values: np.ndarray, name: str, limit: float, where: str) -> None:
+    bad = np.flatnonzero(np.abs(values) > limit)
+    if bad.size:
+        i = int(bad[0])
+        raise LogError(f"{where}: column {name}, row {i + 1}: {values[i]:g} is outside the range the plant accepts "
+                       f"[{-limit:g}, {limit:g}] ({bad.size} such cell(s) in this column)")
 
 
 def _numeric(col: pd.Series, name: str, where: str) -> np.ndarray:
@@ -204,12 +230,36 @@ def _check_time(t: np.ndarray, rate_hz: float, where: str) -> None:
         raise LogError(f"{where}: column time_s, row {k}: time is not strictly increasing "
                        f"({float(t[k - 1])!r} s after {float(t[k - 2])!r} s at row {k - 1})")
     median = float(np.median(dt))
-    for expected, what in ((median, "the median interval"), (1.0 / rate_hz, f"1/sample_rate_hz ({rate_hz:g} Hz)")):
-        off = np.flatnonzero(np.abs(dt - expected) > TIME_TOLERANCE * expected)
-        if off.size:
-            k = int(off[0]) + 2
-            raise LogError(f"{where}: column time_s, row {k}: irregular time: interval {dt[k - 2]:.6g} s from row "
-                           f"{k - 1}, expected {expected:.6g} s ({what}) within {TIME_TOLERANCE:.0%}")
+    _check_interval(dt, median, "the median interval", where)
+    check_sample_rate(t, rate_hz, where)
+    _check_interval(dt, 1.0 / rate_hz, f"1/sample_rate_hz ({rate_hz:g} Hz)", where)
+
+
+def _check_interval(dt: np.ndarray, expected: float, what: str, where: str) -> None:
+    off = np.flatnonzero(np.abs(dt - expected) > TIME_TOLERANCE * expected)
+    if off.size:
+        k = int(off[0]) + 2
+        raise LogError(f"{where}: column time_s, row {k}: irregular time: interval {dt[k - 2]:.6g} s from row "
+                       f"{k - 1}, expected {expected:.6g} s ({what}) within {TIME_TOLERANCE:.0%}")
+
+
+def time_column_rate(t: np.ndarray) -> float:
+    """The sample rate [Hz] the time column runs at: (samples - 1) / (last - first time)."""
+    return float((t.size - 1) / (t[-1] - t[0]))
+
+
+def check_sample_rate(t: np.ndarray, rate_hz: float, where: str) -> float:
+    """The sidecar's sample rate against the time column's (``time_column_rate``): a relative difference above
+    ``RATE_TOLERANCE`` is a ``LogError`` naming both. Why so strict: the model is simulated on the sidecar's rate;
+    0.8 % off moved K* and J_l* by 6-10 % with +-0.5 % intervals (issue 21), and a time column written with 9 or
+    more significant digits pins the rate to far better than 1e-4. Returns the relative difference."""
+    rate_t = time_column_rate(t)
+    rel = abs(rate_t / rate_hz - 1.0)
+    if rel > RATE_TOLERANCE:
+        raise LogError(f"{where}: sample rate: the sidecar says sample_rate_hz = {rate_hz:.10g} Hz, the column time_s "
+                       f"runs at {rate_t:.10g} Hz ({t.size - 1} intervals over {t[-1] - t[0]:.10g} s): relative "
+                       f"difference {rel:.3g} > {RATE_TOLERANCE:g}; correct the sidecar or the time column")
+    return rel
 
 
 # ---------------------------------------------------------------------------------------------------- sidecar
@@ -224,7 +274,7 @@ class _Rule(NamedTuple):
 _META_RULES = {
     "r": _Rule(True, False, 0.0, False),
     "J_m_kgm2": _Rule(False, False, 0.0, False),
-    "f_m_Nm": _Rule(False, False, 0.0, True),
+    "f_m_Nm": _Rule(False, False, 0.0, False),     # > 0: the paper's groups K*, J_l*, f_l* are scaled by f_m
     "arm_length_m": _Rule(True, False, 0.0, False),
     "encoder_counts_per_rev": _Rule(False, True, 1, True),  # absent for e.g. a linear axis with a scale
     "sample_rate_hz": _Rule(True, False, 0.0, False),
@@ -245,6 +295,14 @@ def _load_meta(path: Path, meta: str | Path | dict | None) -> tuple[LogMeta, str
     return _parse_meta(content, where)
 
 
+def read_sidecar(path: str | Path) -> LogMeta:
+    """A sidecar on its own (the known drive data, e.g. for planning an experiment), checked like ``read_log``'s."""
+    path = Path(path)
+    if not path.is_file():
+        raise LogError(f"{path}: sidecar not found")
+    return _parse_meta(_read_json(path), f"sidecar {path}")[0]
+
+
 def _read_json(path: Path) -> Any:
     try:
         return json.loads(path.read_text())
@@ -260,6 +318,8 @@ def _parse_meta(content: Any, where: str) -> tuple[LogMeta, str, dict[str, float
     kind = content.get("kind", "rotary")
     if kind not in SI_UNITS:
         raise LogError(f"{where}: key 'kind' = {kind!r}: use one of {', '.join(SI_UNITS)}")
+    if kind == "rotary":
+        _check_plant_ranges(values, content, where)
     _check_units(content.get("units"), kind, where)
     return LogMeta(**values), kind, _meta_extra(content.get("meta_extra", {}), where)
 
@@ -281,6 +341,24 @@ def _meta_value(content: dict, key: str, rule: _Rule, where: str) -> float | int
         raise LogError(f"{where}: key {key!r} = {value!r} is unphysical: must be {'>=' if rule.inclusive else '>'} "
                        f"{rule.low:g}")
     return value if rule.integer else float(value)
+
+
+# Sidecar key -> the FMU parameter it becomes (a rotary drive is simulated by the plant FMU, whose variable table
+# holds the allowed ranges: a value outside them would only fail later, inside a fit, without naming the key).
+_PLANT_PARAMETER = {"r": "r", "J_m_kgm2": "J_m", "f_m_Nm": "f_m", "arm_length_m": "arm_length",
+                    "encoder_counts_per_rev": "encoder_counts_per_rev"}
+
+
+def _check_plant_ranges(values: dict[str, Any], content: dict[str, Any], where: str) -> None:
+    from fmu_build import variables as V
+
+    for key, name in _PLANT_PARAMETER.items():
+        var, value = V.BY_NAME[name], values.get(key)
+        if value is not None and not (var.lo <= value <= var.hi):
+            unit = f" {var.unit}" if var.unit not in (None, "1") else ""
+            lo, hi = (f"{b}" if var.type == "Integer" else f"{b:g}" for b in (var.lo, var.hi))
+            raise LogError(f"{where}: key {key!r} = {content[key]!r}{unit} is outside the range the plant accepts "
+                           f"[{lo}, {hi}]{unit}")
 
 
 def _check_units(units: Any, kind: str, where: str) -> None:

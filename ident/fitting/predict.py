@@ -16,7 +16,7 @@ import pandas as pd
 from ..common.checks import whole
 from ..model.params import DriveParams
 from ..protocols.resolution import impulse_resolution, linear_resolution
-from .identify import NAMES, TwoInertiaFit
+from .result import NAMES, TwoInertiaFit
 
 
 def _resolutions(task: tuple[DriveParams, int, int]) -> tuple[float, float, int]:

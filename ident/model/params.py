@@ -69,16 +69,21 @@ class DriveParams:
             object.__setattr__(self, f.name, check_parameter(f.name, getattr(self, f.name)))
 
     # -- non-dimensional view -------------------------------------------------------------------------------
+    def _f_m_for(self, group: str) -> float:
+        """f_m, the scale of every non-dimensional group; ParameterError when it cannot be one (f_m = 0)."""
+        if self.f_m <= 0:
+            raise ParameterError(f"f_m must be > 0 for {group} (the paper's groups are scaled by the motor's Coulomb "
+                                 f"friction), got f_m = {self.f_m!r} N.m")
+        return self.f_m
+
     @property
     def T_c(self) -> float:
         """Characteristic time sqrt(J_m/f_m) [s] (needs f_m > 0)."""
-        if self.f_m <= 0:
-            raise ParameterError("f_m must be > 0 for the non-dimensional form (T_c = sqrt(J_m/f_m))")
-        return math.sqrt(self.J_m / self.f_m)
+        return math.sqrt(self.J_m / self._f_m_for("T_c = sqrt(J_m/f_m)"))
 
     @property
     def K_star(self) -> float:
-        return self.K_s / self.f_m
+        return self.K_s / self._f_m_for("K* = K_s/f_m")
 
     @property
     def J_l_star(self) -> float:
@@ -86,7 +91,7 @@ class DriveParams:
 
     @property
     def f_l_star(self) -> float:
-        return self.f_l / self.f_m
+        return self.f_l / self._f_m_for("f_l* = f_l/f_m")
 
     @property
     def count_rad(self) -> float:
@@ -108,6 +113,8 @@ class DriveParams:
         """Build from K*, J_l*, f_l* with the motor's J_m and f_m given (nominal ones by default)."""
         J_m = cls.J_m if J_m is None else J_m
         f_m = cls.f_m if f_m is None else f_m
+        if not (isinstance(f_m, (int, float)) and f_m > 0):
+            raise ParameterError(f"f_m = {f_m!r} N.m: K*, J_l*, f_l* are scaled by f_m, which must be > 0")
         for name, value in (("K_star", K_star), ("J_l_star", J_l_star), ("f_l_star", f_l_star)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ParameterError(f"{name} = {value!r} must be a finite number >= 0")
@@ -121,7 +128,7 @@ class DriveParams:
             check_parameter(sorted(unknown)[0], 0.0)  # raises with the list of known names
         p = replace(self, **changes)
         if nondim:
-            f_m, J_m = p.f_m, p.J_m
+            f_m, J_m = p._f_m_for(", ".join(nondim)), p.J_m
             p = replace(p, K_s=nondim.get("K_star", p.K_star) * f_m, J_l=nondim.get("J_l_star", p.J_l_star) * J_m,
                         f_l=nondim.get("f_l_star", p.f_l_star) * f_m)
         return p

@@ -6,6 +6,7 @@ per-step path calls the FMU's C functions directly with preallocated buffers, be
 """
 from __future__ import annotations
 
+import atexit
 import ctypes
 import shutil
 import tempfile
@@ -22,6 +23,13 @@ from fmu_build.build import default_fmu_path
 from .params import DriveParams, ParameterError, check_parameter
 
 _RUNNER: ctypes.CDLL | None = None
+_UNPACKED: set[str] = set()   # folders of unpacked FMUs still in use: removed at exit even if a plant was not closed
+
+
+@atexit.register
+def _remove_unpacked() -> None:
+    for folder in list(_UNPACKED):
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def _runner() -> ctypes.CDLL:
@@ -116,7 +124,9 @@ class Plant:
         path = Path(fmu_path) if fmu_path is not None else default_fmu_path(fmi_version)
         self.model_description = read_model_description(str(path))
         self.fmi_version = int(self.model_description.fmiVersion[0])
-        self._unzipdir = extract(str(path), unzipdir=tempfile.mkdtemp(prefix="hdrive-fmu-"))
+        self._unzipdir = tempfile.mkdtemp(prefix="hdrive-fmu-")
+        _UNPACKED.add(self._unzipdir)
+        extract(str(path), unzipdir=self._unzipdir)
         kwargs = dict(guid=self.model_description.guid, unzipDirectory=self._unzipdir,
                       modelIdentifier=self.model_description.coSimulation.modelIdentifier, instanceName="plant")
         self._messages: list[str] = []
@@ -272,6 +282,7 @@ class Plant:
             self._fmu.freeInstance()
             self._fmu = None
             shutil.rmtree(self._unzipdir, ignore_errors=True)
+            _UNPACKED.discard(self._unzipdir)
 
     def __enter__(self) -> "Plant":
         return self

@@ -4,68 +4,177 @@ By default a local ``dask.distributed`` cluster of worker processes (one thread 
 FMU instance); with ``scheduler="tcp://HOST:PORT"`` the batch goes to an existing cluster. Each worker builds or
 loads the FMU itself (``fmu_build`` caches it per machine, atomically), so only parameters and results travel.
 Results come back in the order of the inputs, whatever order the workers finish in.
+
+Faults are named, never waited out: a scheduler that cannot be reached within ``CONNECT_TIMEOUT_S`` and a cluster
+that has lost every worker while tasks are pending raise ``BatchError``. Those clocks only decide *whether the
+cluster is alive*; no result depends on them. Local workers keep their temporary files (unpacked FMUs, Dask's
+scratch space) in one folder that is removed with the cluster, also when the batch is interrupted.
 """
 from __future__ import annotations
 
-import logging
 import os
+import shutil
+import sys
+import tempfile
 import threading
-from typing import Any, Callable, Sequence, TypeVar
+from contextlib import contextmanager
+from typing import Any, Callable, Iterator, Sequence, TypeVar
 
 from tqdm import tqdm
 
 T = TypeVar("T")
 R = TypeVar("R")
 
+CONNECT_TIMEOUT_S = 10.0   # how long a scheduler may take to answer before it counts as unreachable
+LIVENESS_POLL_S = 5.0      # how often a batch waiting for results checks that the cluster still has workers
+
+
+class BatchError(RuntimeError):
+    """The batch cannot run: bad worker count, an unreachable scheduler, or a cluster without workers."""
+
 
 def default_workers() -> int:
     return max(1, min(os.cpu_count() or 1, 8))
 
 
+def check_workers(workers: int | None) -> None:
+    """``workers`` is None (the machine's cores), 0 (serial, no Dask) or a positive count."""
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
+        raise BatchError(f"workers = {workers!r}: use a whole number >= 0 (0 = serial, no Dask)")
+
+
+def connect(scheduler: str) -> Any:
+    """A client of the cluster at ``scheduler``, or ``BatchError`` naming it when it does not answer in time."""
+    from dask.distributed import Client
+
+    try:
+        return Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise BatchError(f"cannot reach the Dask scheduler at {scheduler} within {CONNECT_TIMEOUT_S:g} s: "
+                         f"{exc}") from None
+
+
 def run_batch(fn: Callable[[T], R], items: Sequence[T], *, scheduler: str | None = None, workers: int | None = None,
               progress: bool = False, desc: str = "runs") -> list[R]:
     """``[fn(x) for x in items]`` on Dask; ``workers=0`` runs serially in this process (no Dask at all)."""
+    check_workers(workers)
     items = list(items)
     if not items:
         return []
     if workers == 0 and scheduler is None:
         return [fn(x) for x in tqdm(items, desc=desc, disable=not progress)]
-    from dask.distributed import Client, LocalCluster, as_completed
+    if scheduler is not None:
+        client = connect(scheduler)
+        try:
+            return _gather(client, fn, items, progress, desc, scheduler)
+        finally:
+            client.close()
+    return _run_local(fn, items, min(workers or default_workers(), len(items)), progress, desc)
 
-    cluster = None
-    if scheduler is None:
-        n = min(workers or default_workers(), len(items))
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
-    client = Client(cluster if cluster is not None else scheduler)
+
+def _run_local(fn: Callable[[T], R], items: list[T], n: int, progress: bool, desc: str) -> list[R]:
+    import logging
+
+    import dask
+    from dask.distributed import Client, LocalCluster
+
+    scratch = tempfile.mkdtemp(prefix="hdrive-workers-")
+    cluster = client = None
     try:
-        futures = client.map(fn, items, pure=False)
-        index = {f.key: i for i, f in enumerate(futures)}
-        results: list[Any] = [None] * len(items)
-        with tqdm(total=len(items), desc=desc, disable=not progress) as bar:
-            for future in as_completed(futures):
+        with dask.config.set({"temporary-directory": scratch}):
+            with _signals_deferred():  # an interrupt during start-up is handled once the cluster can be shut down
+                # the workers' own warnings (e.g. tasks cancelled by an interrupt) are not the user's business
+                cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                                       local_directory=scratch, env={"TMPDIR": scratch}, silence_logs=logging.ERROR)
+                client = Client(cluster)
+            return _gather(client, fn, items, progress, desc, "the local cluster")
+    finally:
+        _shut_down(client, cluster, interrupted=sys.exc_info()[0] is not None)
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+@contextmanager
+def _signals_deferred() -> Iterator[None]:
+    """Hold SIGINT / SIGTERM back while the block runs (they are delivered when it ends); main thread only."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held = {signal.SIGINT, signal.SIGTERM}
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def _shut_down(client: Any, cluster: Any, interrupted: bool) -> None:
+    """Shut the client and the local cluster down. When the batch was interrupted (Ctrl-C, SIGTERM, an error), the
+    worker processes are killed first, so that the shutdown takes a moment rather than waiting for running tasks;
+    Dask's own complaints about that are the expected end of an interrupted batch, not news for the user."""
+    import logging
+    import multiprocessing
+
+    if interrupted:
+        for child in multiprocessing.active_children():
+            child.kill()
+    quiet = logging.getLogger("distributed")
+    level = quiet.level
+    quiet.setLevel(logging.CRITICAL)
+    try:
+        for part in (client, cluster):
+            if part is not None:
+                try:
+                    part.close(timeout=0.5 if interrupted else 5)
+                except Exception:  # noqa: BLE001 - see the docstring
+                    pass
+    finally:
+        if not interrupted:  # after an interrupt the process is on its way out: Dask's late complaints stay quiet
+            quiet.setLevel(level)
+
+
+def _gather(client: Any, fn: Callable[[T], R], items: list[T], progress: bool, desc: str, where: str) -> list[R]:
+    """Submit, then collect in input order; a worker's exception is re-raised here; ``BatchError`` when the cluster
+    has no worker left while tasks are pending (it would wait forever)."""
+    from dask.distributed import wait
+
+    futures = client.map(fn, items, pure=False)
+    index = {f.key: i for i, f in enumerate(futures)}
+    results: list[Any] = [None] * len(items)
+    pending = set(futures)
+    with tqdm(total=len(items), desc=desc, disable=not progress) as bar:
+        while pending:
+            try:
+                done, pending = wait(pending, timeout=LIVENESS_POLL_S, return_when="FIRST_COMPLETED")
+            except TimeoutError:
+                if not client.scheduler_info().get("workers"):
+                    client.cancel(list(pending))
+                    raise BatchError(f"{where} has no workers left; {len(pending)} of {len(items)} {desc} "
+                                     "unfinished") from None
+                continue
+            for future in done:
                 results[index[future.key]] = future.result()  # re-raises a worker's exception here
                 bar.update()
-        return results
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+    return results
 
 
 class WorkerPool:
     """One set of workers for several batches (a diagnosis runs a few per step, and starting a local cluster costs
-    seconds): a local ``dask.distributed`` cluster of ``workers`` processes (one thread each), an existing cluster
-    (``scheduler``), or none (``workers=0``: every batch runs serially in this process). Results come back in the
-    order of the inputs. The workers start in the background (the caller's first work, e.g. a base fit, overlaps
-    their start-up); the first batch waits for them. Ctrl-C while a batch runs cancels its tasks and stops the local
-    workers at once (their processes are killed, not asked to finish the simulation they are in), then re-raises
-    ``KeyboardInterrupt``."""
+    seconds): a local cluster of ``workers`` processes (one thread each, their scratch space in one folder removed
+    with them), an existing cluster (``scheduler``), or none (``workers=0``: every batch runs serially in this
+    process). Results come back in the order of the inputs. The local workers start in the background (the caller's
+    first work, e.g. a base fit, overlaps their start-up); the first batch waits for them. Ctrl-C cancels the
+    running tasks and kills the local workers (``_shut_down``), then re-raises ``KeyboardInterrupt``."""
 
     def __init__(self, workers: int | None = None, scheduler: str | None = None):
+        check_workers(workers)
         self.workers = default_workers() if workers is None and scheduler is None else workers
         self.scheduler = scheduler
         self.cluster: Any = None
         self.client: Any = None
+        self._scratch: str | None = None
         self._starting: threading.Thread | None = None
         self._error: BaseException | None = None
 
@@ -73,32 +182,39 @@ class WorkerPool:
     def serial(self) -> bool:
         return self.workers == 0 and self.scheduler is None
 
-    def __enter__(self) -> "WorkerPool":
-        if not self.serial:
+    def __enter__(self) -> WorkerPool:
+        if self.scheduler is not None:
+            self.client = connect(self.scheduler)
+        elif not self.serial:
+            self._scratch = tempfile.mkdtemp(prefix="hdrive-workers-")
             self._starting = threading.Thread(target=self._start, name="hdrive-workers", daemon=True)
             self._starting.start()
         return self
 
     def _start(self) -> None:
         try:
+            import logging
+
+            import dask
             from dask.distributed import Client, LocalCluster
 
-            if self.scheduler is None:
+            with dask.config.set({"temporary-directory": self._scratch}):
                 self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                            dashboard_address=None)
-            self.client = Client(self.cluster if self.cluster is not None else self.scheduler)
+                                            dashboard_address=None, local_directory=self._scratch,
+                                            env={"TMPDIR": self._scratch}, silence_logs=logging.ERROR)
+                self.client = Client(self.cluster)
         except BaseException as exc:  # noqa: BLE001 - re-raised in the caller's thread by _ready
             self._error = exc
 
     def _ready(self) -> None:
-        """Wait for the workers (in short slices, so that Ctrl-C is seen at once)."""
+        """Wait for the local workers (in short slices, so that Ctrl-C is seen at once)."""
         while self._starting is not None and self._starting.is_alive():
             self._starting.join(0.1)
         if self._error is not None:
-            raise RuntimeError(f"the Dask workers did not start: {self._error}") from self._error
+            raise BatchError(f"the local Dask workers did not start: {self._error}") from self._error
 
-    def __exit__(self, kind: Any, exc: Any, tb: Any) -> None:
-        self.close(kill=kind is not None and issubclass(kind, KeyboardInterrupt))
+    def __exit__(self, kind: object, exc: object, tb: object) -> None:
+        self.close(interrupted=kind is not None)
 
     def share(self, value: Any) -> Any:
         """``value`` sent to the workers once (a log of megabytes used by every task); pass the result to ``map``
@@ -115,40 +231,20 @@ class WorkerPool:
             return []
         if self.serial:
             return [fn(x) for x in tqdm(items, desc=desc, disable=not progress)]
-        from dask.distributed import as_completed
-
         self._ready()
-        futures = self.client.map(fn, items, pure=False)
-        index = {f.key: i for i, f in enumerate(futures)}
-        results: list[Any] = [None] * len(items)
-        try:
-            with tqdm(total=len(items), desc=desc, disable=not progress) as bar:
-                for future in as_completed(futures):
-                    results[index[future.key]] = future.result()  # re-raises a worker's exception here
-                    bar.update()
-        except BaseException:
-            self.client.cancel(futures)
-            raise
-        return results
+        return _gather(self.client, fn, items, progress, desc, self.scheduler or "the local cluster")
 
-    def close(self, kill: bool = False) -> None:
-        """Stop the pool; ``kill``: kill the local worker processes first (Ctrl-C: do not wait for a simulation)."""
+    def close(self, interrupted: bool = False) -> None:
+        """Stop the pool; ``interrupted``: kill the local workers rather than wait for their tasks."""
         if self._starting is not None and self._starting.is_alive():
-            if kill:  # Ctrl-C while the workers start: their processes are daemons, gone when this one exits
+            if interrupted:  # interrupted while they start: their processes are daemons, gone when this one exits
                 return
-            self._starting.join()  # a cluster half-started cannot be closed; Dask starts it within seconds
-        if self.cluster is not None and kill:
-            logging.getLogger("distributed").setLevel(logging.CRITICAL)
-            for nanny in list(getattr(self.cluster, "workers", {}).values()):
-                nanny.auto_restart = False
-                proc = getattr(getattr(getattr(nanny, "process", None), "process", None), "_process", None)
-                if proc is not None and proc.is_alive():
-                    proc.kill()
-        try:
+            self._starting.join()
+        if self.scheduler is not None:
             if self.client is not None:
-                self.client.close(timeout=2)
-            if self.cluster is not None:
-                self.cluster.close(timeout=2)
-        except Exception:  # noqa: BLE001 - closing after a kill may time out; the processes are gone
-            pass
+                self.client.close()
+        else:
+            _shut_down(self.client, self.cluster, interrupted)
+        if self._scratch is not None:
+            shutil.rmtree(self._scratch, ignore_errors=True)
         self.client = self.cluster = None

@@ -40,19 +40,32 @@ class NoConsistentStep(RuntimeError):
 
 @contextmanager
 def _plant(plant_or_params: Plant | DriveParams | None, fmi_version: int) -> Iterator[Plant]:
-    """A Plant: the one given, or a new one (closed afterwards) for the given drive (nominal if None)."""
+    """A Plant: the one given, or a new one (closed afterwards) for the given drive (nominal if None); its drive
+    checked for what the protocols need (``require_rest``)."""
     if isinstance(plant_or_params, Plant):
+        require_rest(plant_or_params.params)
         yield plant_or_params
         return
     if plant_or_params is not None and not isinstance(plant_or_params, DriveParams):
         raise ValueError(f"expected a DriveParams or a Plant, got {type(plant_or_params).__name__}")
     if fmi_version not in (2, 3):
         raise ValueError(f"fmi_version = {fmi_version!r}: use 2 or 3")
+    require_rest(plant_or_params or DriveParams())
     plant = Plant(plant_or_params, fmi_version=fmi_version)
     try:
         yield plant
     finally:
         plant.close()
+
+
+def require_rest(params: DriveParams) -> None:
+    """The protocols measure increments between rests: both bodies must be able to stick, i.e. have a friction
+    level > 0 (a frictionless body never stops exactly, even with viscous damping). ValueError naming the level."""
+    for name, level, star in (("f_m", params.f_m, None), ("f_l", params.f_l, "f_l*")):
+        if level <= 0:
+            scaled = f" (f_l* = {params.f_l / params.f_m:g})" if star and params.f_m > 0 else ""
+            raise ValueError(f"{name} = {level:g} N.m{scaled}: a body without friction never comes to rest, so the "
+                             "resolution protocols (increments between rests) are undefined; use a friction level > 0")
 
 
 def _fresh(plant: Plant) -> None:
@@ -339,4 +352,4 @@ def linear_resolution(plant_or_params: Plant | DriveParams | None = None, n_step
 
 __all__ = ["ImpulseResolution", "IncrementStats", "LinearResolution", "NoConsistentStep", "SettleError",
            "ThresholdNotFound", "find_threshold", "impulse_experiment", "impulse_resolution", "linear_resolution",
-           "linear_steps", "plot_increments"]
+           "linear_steps", "plot_increments", "require_rest"]

@@ -1,0 +1,61 @@
+"""Load-sensor noise estimates.
+
+The identifier uses **one** noise estimate for everything it reports and decides (``residual_noise_std``): the white
+part of the load residual at the whole-log optimum. The model-free estimates below only seed the first fitting
+window's weights (the load rows against the encoder rows), before any model has been fitted.
+
+Why the residual, and why its first differences: after the fit, the residual is the sensor noise plus whatever the
+model misses. The misfit of a model that lacks an effect is smooth on the scale of a sample (it follows the motion:
+ringing at a few % of the sample rate, slides, breakaways), while the sensor's noise is white; first differences keep
+the white part (variance 2 sigma^2) and suppress a misfit at frequency f by (2 sin(pi f / rate))^2 (0.1 at 5 % of the
+rate). Estimating the noise from the raw signal instead (quiet stretches, or high-order differences) fails on logs
+whose load never stops ringing, on slow sample rates (1 kHz: the ringing survives any difference) and on steps
+(issue 21 measured 5.2x and 28.7x); the residual does not contain the motion.
+
+Limit, said plainly: a misfit faster than about a sixth of the sample rate also survives the differences and is
+counted as noise, so a missing effect that only shows at such frequencies cannot be told from noise.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+MAD_TO_SIGMA = 1.0 / 0.6744897501960817  # a Gaussian's standard deviation over its median absolute deviation
+
+
+def residual_noise_std(residual: np.ndarray) -> float:
+    """White-noise level [same unit as ``residual``] of a fit's residual: the median absolute first difference,
+    scaled for a Gaussian (MAD / 0.6745 / sqrt(2)). The median makes the few samples where a model that misses an
+    effect mistimes a breakaway (a jump in the residual) irrelevant."""
+    d = np.diff(np.asarray(residual, dtype=float))
+    if d.size == 0:
+        return 0.0
+    return float(np.median(np.abs(d - np.median(d))) * MAD_TO_SIGMA / math.sqrt(2.0))
+
+
+def white_noise_std(y: np.ndarray) -> float:
+    """Model-free white-noise level of a sampled signal: the median absolute 4th difference / (0.6745 sqrt(70)).
+
+    A 4th difference of white noise has the variance 70 sigma^2, while a motion slow against the sample rate nearly
+    vanishes in it ((w dt)^4: 1e-4 of the amplitude for an 80 Hz ringing at 5 kHz); the median ignores the pulses'
+    jumps. It assumes the signal is slow for at least half of the samples (not so at 1 kHz with a fast ringing); the
+    identifier uses it only as the first window's starting weight. The discrepancy workflow's noise floor uses it."""
+    d4 = np.diff(np.asarray(y, dtype=float), 4)
+    if d4.size == 0:
+        return 0.0
+    return float(np.median(np.abs(d4 - np.median(d4))) * MAD_TO_SIGMA / math.sqrt(70.0))
+
+
+def noise_std(y: np.ndarray) -> float:
+    """White-noise level of a signal from its quiet stretches: std of second differences / sqrt(6) in windows of
+    25 samples; the windows within 1.5x of the 10th percentile hold nothing but noise (a stuck body), and their
+    median is the estimate. Kept for callers outside the identifier; it reads high when the load rings most of the
+    time (measured 5x on step logs, issue 21), which is why the identifier no longer uses it."""
+    d2 = np.diff(y, 2)
+    w = 25
+    if d2.size < 4 * w:
+        return float(np.std(d2) / math.sqrt(6))
+    stds = d2[: d2.size // w * w].reshape(-1, w).std(axis=1, ddof=1)
+    quiet = stds[stds <= 1.5 * np.percentile(stds, 10)]
+    return float(np.median(quiet) / math.sqrt(6))

@@ -1,0 +1,210 @@
+"""The identifier's data-driven start (no user guess): the load's free ringing while the motor is stuck.
+
+While the motor stands still, the load is a one-body oscillator on a fixed spring: J_l q_l'' = -K_s q_l
+- f_l sgn(q_l') + const. Its frequency w_l = sqrt(K_s/J_l) and its Coulomb decay f_l/J_l are read off the log; the
+scale J_l* is left to the first window's grid (``identify._first_stage``).
+
+**Free-ringing segments** (``free_ringing_segments``): runs of a constant encoder count, cut wherever the commanded
+torque exceeds the motor's Coulomb level f_m (a pulse or a step that can move the motor inside one count: a one-way
+pulse train moves the motor by less than a count per pulse, so a constant count alone would span many pulses and the
+spectrum would show the pulse staircase -- issue 21's "2 Hz ringing"). Only runs of at least
+``MIN_SEGMENT_SAMPLES`` samples are used.
+
+**Frequency**: the peak of the summed (Hann-windowed, detrended, zero-padded) power spectra of the segments: each
+segment's own spectrum, so that the joins between segments add no broadband steps. **Decay**: a linear least-squares
+fit of the load's acceleration on position and velocity sign (Savitzky-Golay derivatives, a window of 1/8 ringing
+period), an offset per segment removed by demeaning within each segment (no per-segment dummy columns: their size
+grew with rows x segments, the superlinear memory of issue 21).
+
+The spectral peak of free ringing is the start's frequency (``frequency_trusted``) when it stands clear of the noise
+(``MIN_CONTRAST``) and either the least-squares frequency agrees with it within ``CONSISTENT_W2`` (``consistent``;
+their disagreement is then the uncertainty the first grid spans, ``w_l2_spread``: a PD log had 1.23 in w_l^2, the
+peak 19 % below the truth) or it comes from several segments over at least two of its periods (``MIN_SEGMENTS``, ``MIN_CONTRAST``, ``MIN_PERIODS``; a pulse train
+every 56 ms on a 17.7 Hz ringing showed a resolution-bound peak at 12.5 Hz; the Savitzky-Golay derivatives lose accuracy below ~16 samples per
+period -- 8.5 samples gave 0.63 of w_l^2 -- while the peak stays right). The least-squares decay is used only when
+consistent; otherwise the first window's grid spans the friction widely. An untrusted peak (one short segment at
+1 kHz read 374 Hz for a 113 Hz ringing) stays one candidate among those below, with the least-squares frequency. When no segment qualifies (a chirp, a log that never lets the motor rest),
+the spectral peaks of the whole load signal and of the torque-to-load transfer ratio are the candidates
+(``candidates_hz``) that the first window's grid scans.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from ..model.params import DriveParams
+from .logs import DriveLog
+from .noise import white_noise_std
+
+MIN_SEGMENT_SAMPLES = 32        # a spectrum needs a few samples per period and a few periods
+CONSISTENT_W2 = 0.3             # relative disagreement of the two w_l^2 beyond which the start is not trusted
+MIN_FREQUENCY_HZ = 2.0          # below this a "ringing" is a drift (the old start's floor, kept)
+# A spectral peak is trusted without the least-squares check when it comes from at least MIN_SEGMENTS segments and
+# stands MIN_CONTRAST (20 dB) above the band's median power: the largest of ~1000 bins of pure noise reaches ~10x
+# the median (an exponential's ln(1000) / ln(2)).
+MIN_SEGMENTS = 3
+MIN_CONTRAST = 100.0
+W2_SPREAD = 0.06    # the smallest relative uncertainty of a trusted w_l^2 that the first grid spans
+MIN_PERIODS = 2.0   # ... and when the longest segment spans this many periods of it (else the peak is resolution-bound)
+
+
+class StartError(RuntimeError):
+    """The log holds no motion from which a start can be read."""
+
+
+def standstill_runs(counts: np.ndarray, min_len: int) -> list[tuple[int, int]]:
+    """Runs [start, stop) of at least ``min_len`` samples over which the encoder count does not change."""
+    change = np.flatnonzero(np.diff(counts) != 0) + 1
+    edges = np.concatenate([[0], change, [counts.size]])
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b - a >= min_len]
+
+
+def free_ringing_segments(log: DriveLog, base: DriveParams, min_len: int = MIN_SEGMENT_SAMPLES
+                          ) -> list[tuple[int, int]]:
+    """Runs [start, stop) of a constant encoder count with no torque above f_m inside (see the module docstring)."""
+    counts = np.round(log.motor_pos_rad / base.count_rad).astype(np.int64)
+    strong = np.abs(log.motor_torque_Nm) > base.f_m
+    out = []
+    for s, e in standstill_runs(counts, min_len):
+        cuts = np.flatnonzero(strong[s:e]) + s
+        edges = np.concatenate([[s - 1], cuts, [e]])
+        out += [(int(a) + 1, int(b)) for a, b in zip(edges[:-1], edges[1:]) if b - a - 1 >= min_len]
+    return out
+
+
+def segment_spectrum_peak(segments: list[np.ndarray], rate_hz: float) -> tuple[float | None, float]:
+    """(frequency [Hz] of the largest peak above ``MIN_FREQUENCY_HZ`` of the summed power spectra of ``segments``
+    (each detrended, Hann-windowed and zero-padded to a common length), the peak's power over the band's median);
+    (None, 0) when there is nothing to analyse."""
+    longest = max((s.size for s in segments), default=0)
+    if longest < MIN_SEGMENT_SAMPLES:
+        return None, 0.0
+    nfft = 1 << int(math.ceil(math.log2(4 * longest)))
+    power = np.zeros(nfft // 2 + 1)
+    for s in segments:
+        t = np.arange(s.size)
+        detrended = s - np.polyval(np.polyfit(t, s, 1), t)
+        power += np.abs(np.fft.rfft(detrended * np.hanning(s.size), nfft)) ** 2
+    freq = np.fft.rfftfreq(nfft, 1.0 / rate_hz)
+    peak = _peak(power, freq)
+    band = power[freq > MIN_FREQUENCY_HZ]
+    contrast = float(band.max() / max(np.median(band), 1e-300)) if band.size else 0.0
+    return peak, contrast
+
+
+def _peak(power: np.ndarray, freq: np.ndarray) -> float | None:
+    band = np.flatnonzero(freq > MIN_FREQUENCY_HZ)
+    if band.size < 3 or not np.any(power[band] > 0):
+        return None
+    k = int(band[np.argmax(power[band])])
+    if 0 < k < power.size - 1:  # parabolic interpolation of the log-spectrum around the peak bin
+        a, b, c = np.log(power[k - 1:k + 2] + 1e-300)
+        den = a - 2 * b + c
+        return float((k + (0.5 * (a - c) / den if den < 0 else 0.0)) * (freq[1] - freq[0]))
+    return float(freq[k])
+
+
+def dominant_frequency(segments: list[np.ndarray], rate_hz: float) -> float:
+    """Frequency [Hz] of the largest spectral peak above 2 Hz of the (demeaned, concatenated) segments. Kept for
+    callers outside the identifier (the identifier uses ``segment_spectrum_peak``)."""
+    x = np.concatenate([s - s.mean() for s in segments])
+    spec = np.abs(np.fft.rfft(x * np.hanning(x.size)))
+    peak = _peak(spec ** 2, np.fft.rfftfreq(x.size, 1.0 / rate_hz))
+    return float(peak if peak is not None else 0.0)
+
+
+def whole_log_candidates(log: DriveLog, count: int = 3) -> list[float]:
+    """Frequencies [Hz] of the ``count`` largest spectral peaks of the detrended load signal, and of the ratio of
+    the load's spectrum to the torque's (a resonance shows there even when the torque never rests)."""
+    y = log.load_pos_rad - np.polyval(np.polyfit(log.time_s, log.load_pos_rad, 1), log.time_s)
+    win = np.hanning(y.size)
+    freq = np.fft.rfftfreq(y.size, log.dt)
+    py = np.abs(np.fft.rfft(y * win)) ** 2
+    pu = np.abs(np.fft.rfft((log.motor_torque_Nm - log.motor_torque_Nm.mean()) * win)) ** 2
+    # the load's acceleration over the torque: a resonance is a peak of this ratio (smoothed over 9 bins)
+    ratio = np.convolve(py * freq ** 4, np.ones(9), "same") / (np.convolve(pu, np.ones(9), "same") + 1e-300)
+    out: list[float] = []
+    for spec in (py * freq ** 2, ratio):
+        spec = spec.copy()
+        for _ in range(count):
+            f = _peak(spec, freq)
+            if f is None:
+                break
+            if all(abs(f / g - 1) > 0.05 for g in out):
+                out.append(f)
+            k = int(round(f / (freq[1] - freq[0])))
+            spec[max(0, k - 5):k + 6] = 0.0  # the next peak
+    return out
+
+
+def _ls_ringing(log: DriveLog, segs: list[tuple[int, int]], f_peak: float, sigma: float
+                ) -> tuple[float, float, int, int]:
+    """(w_l^2, f_l/J_l, rows, window) by least squares on the segments' free ringing (module docstring)."""
+    rate = log.meta.sample_rate_hz
+    y = log.load_pos_rad
+    window = int(max(7, 2 * round(rate / (16.0 * f_peak)) + 1))  # ~1/8 of a ringing period, odd
+    if window >= y.size:
+        return math.nan, math.nan, 0, window
+    v = savgol_filter(y, window, 3, deriv=1, delta=log.dt)
+    a = savgol_filter(y, window, 3, deriv=2, delta=log.dt)
+    sigma_v = sigma * math.sqrt(12.0 / (window**3)) / log.dt  # LS slope noise over the window
+    # rows within a smoothing window of a stop or reversal are left out: there the friction force jumps and the
+    # window smears the jump into the estimated acceleration
+    slow = np.abs(v) <= 5 * sigma_v
+    near_stop = np.convolve(slow.astype(float), np.ones(2 * window + 1), mode="same") > 0
+    xs, ss, ts = [], [], []
+    for s, e in segs:
+        idx = np.arange(s + window, e - window)
+        idx = idx[~near_stop[idx]]
+        if idx.size < 3:
+            continue
+        # demeaned within the segment: the segment's own equilibrium (r q_m + friction side) drops out
+        xs.append(-(y[idx] - y[idx].mean()))
+        ss.append(-(np.sign(v[idx]) - np.sign(v[idx]).mean()))
+        ts.append(a[idx] - a[idx].mean())
+    rows = sum(x.size for x in xs)
+    if rows < 50:
+        return math.nan, math.nan, rows, window
+    X = np.column_stack([np.concatenate(xs), np.concatenate(ss)])
+    coef, *_ = np.linalg.lstsq(X, np.concatenate(ts), rcond=None)
+    return float(coef[0]), float(coef[1]), rows, window
+
+
+def equation_error_start(log: DriveLog, base: DriveParams) -> dict[str, float]:
+    """w_l^2 = K_s/J_l and f_l/J_l from the load's free ringing (see the module docstring). Keys: ``w_l2``,
+    ``f_l_over_J_l``, ``f_peak_hz``, ``w_l2_ls``, ``segments``, ``rows``, ``window``, ``consistent`` (1.0 when the
+    spectral and least-squares frequencies agree), ``candidates_hz`` (frequencies the first window's grid scans)."""
+    rate = log.meta.sample_rate_hz
+    y = log.load_pos_rad
+    sigma = max(white_noise_std(y), 1e-15)
+    segs = free_ringing_segments(log, base)
+    f_peak, contrast = segment_spectrum_peak([y[s:e] for s, e in segs], rate) if segs else (None, 0.0)
+    out: dict[str, float] = {"segments": len(segs), "sigma_start_rad": sigma, "peak_contrast": contrast}
+    w2_ls = f_over_J = math.nan
+    rows, window = 0, 0
+    if f_peak is not None:
+        w2_ls, f_over_J, rows, window = _ls_ringing(log, segs, f_peak, sigma)
+    consistent = (f_peak is not None and w2_ls > 0 and
+                  abs(w2_ls / (2 * math.pi * f_peak) ** 2 - 1) <= CONSISTENT_W2)
+    longest = max((e - s for s, e in segs), default=0) / rate
+    resolved = f_peak is not None and longest * f_peak >= MIN_PERIODS
+    trusted = f_peak is not None and contrast >= MIN_CONTRAST and (consistent or (resolved and
+                                                                              len(segs) >= MIN_SEGMENTS))
+    # how far the frequency may be off: the two estimates' disagreement (w_l^2), at least 6 % (+-3 % in w_l)
+    spread = abs(w2_ls / (2 * math.pi * f_peak) ** 2 - 1) if consistent else 0.0
+    own = [f_peak] if f_peak is not None else []
+    if not trusted and w2_ls > 0:
+        own.append(math.sqrt(w2_ls) / (2 * math.pi))
+    candidates = [f_peak] if trusted else own + whole_log_candidates(log)
+    if not candidates:
+        raise StartError("the load shows no ringing: neither free ringing while the motor rests nor a resonance "
+                         "in the whole log; K*, J_l* and f_l* are not excited (apply pulses and let the load ring)")
+    f0 = candidates[0]
+    out.update(w_l2=(2 * math.pi * f0) ** 2, w_l2_ls=w2_ls, f_peak_hz=f0,
+               f_l_over_J_l=f_over_J if consistent and f_over_J > 0 else math.nan,
+               rows=rows, window=window, consistent=float(consistent), frequency_trusted=float(trusted),
+               w_l2_spread=max(W2_SPREAD, spread),
+               candidates_hz=candidates)
+    return out

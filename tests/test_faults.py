@@ -1,0 +1,144 @@
+"""Faults and interrupts end a command with a named error or exit 130 / 143, before the work where they can be
+checked then, and leave no staging folder, temporary folder or half-written output behind (issue: reliability)."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from ident.cli import main
+from ident.protocols import batch
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_cli(args: list[str], capsys) -> tuple[int, str]:
+    code = main(args)
+    return code, capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args, message", [
+    (["sweep", "--workers", "-1", "--out", "OUT"], "--workers = -1: must be >= 0"),
+    (["study", "--levels", "1", "--out", "OUT"], "--levels = 1: must be >= 2"),
+    (["predict", "run.csv", "--draws", "0"], "--draws = 0: must be >= 2"),
+    (["diagnose", "run.csv", "--out", "OUT", "--max-effects", "-1"], "--max-effects = -1: must be >= 1"),
+    (["resolution", "--controller", "impulse", "--eps1-um", "0"], "--eps1-um = 0.0: must be > 0"),
+    (["resolution", "--controller", "impulse", "--eps1-um", "nan"], "--eps1-um = nan: must be a finite number"),
+    (["resolution", "--controller", "impulse", "--fl-star", "0", "--pulses", "5"],
+     "f_l = 0 N.m (f_l* = 0): a body without friction never comes to rest"),
+    (["resolution", "--controller", "linear", "--param", "f_m=0", "--fl-star", "0.2"], "f_m must be > 0"),
+])
+def test_bad_options_are_named_before_any_work(tmp_path, capsys, args, message) -> None:
+    args = [str(tmp_path / a) if a in ("OUT", "run.csv") else a for a in args]
+    t0 = time.perf_counter()
+    code, err = run_cli(args, capsys)
+    assert code == 2 and message in err, err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert time.perf_counter() - t0 < 30   # a hang guard, not a speed target
+    assert not (tmp_path / "OUT").exists()
+
+
+def test_out_that_is_a_file_is_refused_before_the_work(tmp_path, capsys) -> None:
+    target = tmp_path / "existing"
+    target.write_text("keep me")
+    for args in (["demo", "--out", str(target)], ["study", "--out", str(target), "--levels", "2"]):
+        code, err = run_cli(args, capsys)
+        assert code == 2 and f"--out {target}: exists and is not a folder" in err, err
+    assert target.read_text() == "keep me"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["existing"]
+
+
+def test_emps_report_without_data_is_named(tmp_path, capsys) -> None:
+    code, err = run_cli(["emps-report", "--out", str(tmp_path / "e"), "--data", str(tmp_path)], capsys)
+    assert code == 2 and "DATA_EMPS.mat: no such EMPS .mat file" in err, err
+    assert not (tmp_path / "e").exists()
+
+
+def test_unreachable_scheduler_is_named(monkeypatch, tmp_path, capsys) -> None:
+    monkeypatch.setattr(batch, "CONNECT_TIMEOUT_S", 1.0)
+    code, err = run_cli(["sweep", "--levels", "2", "--pulses", "3", "--scheduler", "tcp://127.0.0.1:1",
+                         "--out", str(tmp_path / "s")], capsys)
+    assert code == 2 and "cannot reach the Dask scheduler at tcp://127.0.0.1:1 within 1 s" in err, err
+    assert not (tmp_path / "s").exists()
+
+
+def _sleep_then_double(x: int) -> int:
+    time.sleep(60)
+    return 2 * x
+
+
+def test_a_cluster_that_loses_its_workers_is_named(monkeypatch) -> None:
+    """An external cluster whose last worker goes away while tasks are pending: a named error, not a hang."""
+    from dask.distributed import LocalCluster
+
+    monkeypatch.setattr(batch, "LIVENESS_POLL_S", 0.5)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        import threading
+
+        threading.Timer(2.0, lambda: cluster.scale(0)).start()
+        t0 = time.perf_counter()
+        with pytest.raises(batch.BatchError, match="has no workers left; 2 of 2 runs unfinished"):
+            batch.run_batch(_sleep_then_double, [1, 2], scheduler=cluster.scheduler_address)
+        assert time.perf_counter() - t0 < 60
+
+
+@pytest.mark.parametrize("sig, code, word", [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")])
+def test_interrupting_a_sweep_leaves_nothing_behind(tmp_path, sig, code, word) -> None:
+    """Ctrl-C / SIGTERM during a sweep on local Dask workers: exit 130 / 143 with one line, no output folder, no
+    staging folder, and no temporary folder (unpacked FMUs, worker scratch) in a private TMPDIR. How fast it stops is
+    measured in bench/interrupts.py, not here."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    out = tmp_path / "sweep"
+    env = {**os.environ, "TMPDIR": str(tmp), "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-m", "ident", "sweep", "--levels", "25", "--pulses", "1000", "--out",
+                             str(out), "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            cwd=tmp_path)
+    deadline = time.monotonic() + 60
+    while not any(tmp.iterdir()) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)   # wait until the work has started (the workers' scratch folder exists)
+    time.sleep(1.0)
+    proc.send_signal(sig)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == code, stderr
+    assert stderr.strip().splitlines()[-1] == f"hdrive sweep: {word} ({'Ctrl-C' if code == 130 else 'SIGTERM'}); " \
+                                              "no output was left half-written"
+    assert "Traceback" not in stderr and stdout == ""
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tmp"]
+    assert list(tmp.iterdir()) == []
+
+
+def test_unpacked_fmus_are_removed_at_exit_even_unclosed(tmp_path) -> None:
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    code = "from ident import Plant; p = Plant(); p.step(0.02, 1e-3); import os; print(len(os.listdir(os.environ['TMPDIR'])))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env={**os.environ, "TMPDIR": str(tmp), "PYTHONPATH": str(ROOT)})
+    assert out.stdout.strip() == "1"          # the plant's unpacked FMU while it runs
+    assert list(tmp.iterdir()) == []          # gone after the interpreter exits, although close() was never called
+
+
+def test_a_bug_prints_one_line_not_a_traceback(capsys) -> None:
+    from ident.cli import build_parser, run
+
+    def broken(args):
+        raise KeyError("something internal")
+
+    args = build_parser().parse_args(["resolution", "--controller", "impulse"])
+    args.func = broken
+    code, result = run(args)
+    err = capsys.readouterr().err
+    assert (code, result) == (1, None)
+    assert err.startswith("hdrive resolution: internal error: KeyError") and err.count("\n") == 1, err
+
+
+def test_json_output_is_one_document(capsys) -> None:
+    assert main(["resolution", "--controller", "impulse", "--pulses", "3", "--json"]) == 0
+    json.loads(capsys.readouterr().out)
