@@ -167,7 +167,7 @@ def test_cli_json_progress_and_fmu(tmp_path):
     write_log(log, path)
     out = tmp_path / "out"
     proc = subprocess.run([sys.executable, "-m", "ident", "diagnose", str(path), "--json", "--out", str(out),
-                           "--max-effects", "0", "--pulses", "20", "--workers", "0"], capture_output=True, text=True,
+                           "--max-effects", "1", "--pulses", "20", "--workers", "0"], capture_output=True, text=True,
                           env=_env(), timeout=600)
     assert proc.returncode == 0, proc.stderr
     data = json.loads(proc.stdout)
@@ -228,6 +228,18 @@ def test_bad_input():
     other = replace(log, time_s=np.arange(log.n) / 1000.0, meta=replace(log.meta, sample_rate_hz=1000.0))
     with pytest.raises(LogError, match="sample rate"):
         diagnose(log, holdout=other, workers=0)
+
+
+def test_data_errors_are_caught_before_any_effect_is_named():
+    """Issue 16 item 6: a sidecar sample rate 0.8 % off the time column, or a gear ratio twice the true one, is the
+    identifier's data-check error before anything is fitted (before: a phantom kinematic error was named)."""
+    from dataclasses import replace
+
+    log, _ = load(CLEAN, **SHORT)
+    with pytest.raises(LogError, match="sample"):
+        diagnose(replace(log, meta=replace(log.meta, sample_rate_hz=log.meta.sample_rate_hz * 1.008)), workers=0)
+    with pytest.raises(LogError, match="ratio|gear"):
+        diagnose(replace(log, meta=replace(log.meta, r=2 * log.meta.r)), workers=0)
 
 
 # ------------------------------------------------------------------------------------------ the matrix (slow) ----

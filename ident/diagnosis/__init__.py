@@ -10,6 +10,6 @@ DEFAULT_BUDGET = 300.0
 
 #: a model whose sensor residual stays above this many times the sensor's noise (on the training or the held-back
 #: part) does not explain its log: effects it names are tentative, and where the residual sits is reported as
-#: unexplained. A model that explains its log ends at 0.98-1.02x (the noise estimate, ``identify.white_noise_std``,
-#: is itself accurate to about 2 %, measured on the independent generator's logs); 1.05 leaves room for that.
+#: unexplained. A model that explains its log ends at 0.98-1.02x (the noise estimate, the identifier's white part of
+#: the base fit's residual, is itself accurate to a few %); 1.05 leaves room for that.
 CONFIDENT_OVER_NOISE = 1.05

@@ -453,8 +453,14 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
 
 
 def _data_checks(log: DriveLog, holdout: DriveLog | None) -> None:
-    """Data errors before physics: the identifier's checks of the log (sample rate, ratio, units), so that no
-    effect is named for a mistake in the data. Raises ``LogError`` naming the problem."""
+    """Data errors before physics: the identifier's checks of every log (``ident.fitting.datachecks``: the
+    sidecar's sample rate against the time column, the encoder grid, the gear ratio and the load sensor's unit and
+    sign), so that no effect is named for a mistake in the data. Raises ``LogError`` naming each failed check."""
+    from ..fitting.datachecks import check_log
+
     for item in (log, holdout):
-        if item is not None and item.n < 20:
+        if item is None:
+            continue
+        if item.n < 20:
             raise LogError(f"{item.source}: {item.n} samples are too few for a diagnosis")
+        check_log(item, raise_errors=True)

@@ -200,7 +200,7 @@ class WorkerPool:
 
             with dask.config.set({"temporary-directory": self._scratch}):
                 self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                            dashboard_address=None, local_directory=self._scratch,
+                                            dashboard_address=":0", local_directory=self._scratch,
                                             env={"TMPDIR": self._scratch}, silence_logs=logging.ERROR)
                 self.client = Client(self.cluster)
         except BaseException as exc:  # noqa: BLE001 - re-raised in the caller's thread by _ready

@@ -172,12 +172,5 @@ def simulate_full(log: DriveLog, problem: ModelProblem, theta: np.ndarray) -> di
     return sim
 
 
-def noise_floor_sigma(y: np.ndarray) -> float:
-    """The load sensor's noise [rad] every model is weighed with (``identify.white_noise_std``)."""
-    from ...fitting.identify import white_noise_std
-
-    return max(white_noise_std(y), 1e-15)
-
-
 def rms(x: np.ndarray) -> float:
     return float(math.sqrt(float(np.mean(np.square(x))))) if x.size else 0.0

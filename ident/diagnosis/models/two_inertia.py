@@ -48,7 +48,7 @@ from ..screening import ScoreTest, best_of_grid, partial_out, score_test
 from . import two_inertia_report as report
 from . import CandidateFit, Fitted, Magnitude, ModelPlugin
 from .coordinates import TWO_INERTIA_EFFECTS, LogScales, coordinates, fmu_values, grid, magnitude_of
-from .problem import SAME_PROPAGATOR, ModelProblem, Sensitivity, noise_floor_sigma, rms, simulate_full
+from .problem import SAME_PROPAGATOR, ModelProblem, Sensitivity, rms, simulate_full
 
 HOLDBACK_FRACTION = 0.3
 #: IPOPT iterations of a drop / backward refit (a candidate's refit runs until its budget is spent)
@@ -98,19 +98,25 @@ class TwoInertiaPlugin(ModelPlugin):
         self.full, self.stop = split_training(log, holdout)
         self.start = start
         self.names = tuple(n for n in names if n != FLEXIBILITY)
-        self.sigma = noise_floor_sigma(self.full.load_pos_rad[:self.stop])
+        self.sigma = math.nan   # the load sensor's noise: the identifier's one estimate, set by fit_base
+        self.identified: Any = None
         self.resolution_pulses = resolution_pulses
         self.held_source = "the last 30 % of the log" if holdout is None else holdout.source
 
     # ---------------------------------------------------------------------------------------- models ----------
 
     def fit_base(self) -> Fitted:
+        """The identifier on the training part (``identify``: its data checks, its fit and its one load-noise
+        estimate, which weighs every model of the diagnosis); with the rigid start, the rigid kinematics (the
+        identification is then flexibility's refit)."""
+        self.identified = identify(truncate_log(self.full, self.stop))
+        self.sigma = self.identified.sigma_load_rad
         if self.start == "rigid":
             return self._rigid()
         return self._identified()
 
     def _identified(self) -> Fitted:
-        fit = identify(truncate_log(self.full, self.stop))
+        fit = self.identified
         base = fit.params
         problem = ModelProblem(self.full, base, (), None, self.stop, self.sigma)  # type: ignore[arg-type]
         try:
@@ -396,7 +402,8 @@ class TwoInertiaPlugin(ModelPlugin):
 
     def notes(self) -> list[str]:
         return [f"held-back data: {self.held_source} (t >= {self.full.time_s[self.stop]:.3f} s), only ever "
-                f"predicted; load sensor noise {self.sigma:.4g} rad (4th-difference estimate of the training part)"]
+                f"predicted; load sensor noise {self.sigma:.4g} rad (the identifier's estimate: the white part of "
+                "the base fit's residual on the training part)"]
 
     def export(self, model: Fitted, folder: Path) -> tuple[Path | None, str]:
         from ...model.export import export_fitted_fmu
