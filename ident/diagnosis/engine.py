@@ -209,34 +209,39 @@ class _Search:
         """The accepted candidate (lowest held-back cost first), the candidate table's rows, and the model without
         the best candidate when its drop test failed (the gain then came from a better-converged refit)."""
         ok = sorted((f for f in fits if f.model is not None), key=lambda f: f.model.held_cost)
-        rows = [_row(f, current) for f in fits]
+        rows = {f.name: _row(f, current) for f in fits}
         winner = reduced = None
         for f in ok:
-            v = verdict(current, f.model)
-            row = next(r for r in rows if r["candidate"] == f.name)
-            reasons = list(v.reasons) + ([f.veto] if f.veto else [])
-            if not reasons:
-                mag = self.plugin.magnitude(f.model, f.name)
-                if not mag.excludes_zero:
-                    reasons.append(f"its magnitude's 95 % interval includes 0 ({mag.value:.3g} {mag.unit}, "
-                                   f"[{mag.ci95[0]:.3g}, {mag.ci95[1]:.3g}])")
-            if not reasons:
-                drop = self.plugin.without(f.model, f.name, self.budget)
-                dv = verdict(drop, f.model)
-                row["drop_test_gain"] = dv.gain
-                if not dv.accepted:
-                    reasons.append(f"drop test: the model without it, refitted from the same point, predicts the "
-                                   f"held-back data as well ({dv.gain:.4g}x)")
-                    reduced = drop if reduced is None else reduced
-            row["accepted"], row["why"] = not reasons, "; ".join(reasons) or "passes the rule"
+            reasons, drop = self._judge(current, f, rows[f.name])
+            if drop is not None and reduced is None:
+                reduced = drop
+            rows[f.name]["accepted"], rows[f.name]["why"] = not reasons, "; ".join(reasons) or "passes the rule"
             if not reasons:
                 winner = f
                 break
-        for row in rows:
+        for row in rows.values():
             if not row["why"]:
                 row["why"] = ("not fitted" if row["error"] else
                               f"not tested: {winner.name} predicts the held-back data better" if winner else "")
-        return winner, rows, reduced
+        return winner, list(rows.values()), reduced
+
+    def _judge(self, current: Fitted, f: CandidateFit, row: dict[str, Any]) -> tuple[list[str], Fitted | None]:
+        """Why ``f`` is not accepted (empty: it is): the statistical rule, the model's own veto, its magnitude's
+        interval, and the drop test; also the model without it when the drop test failed."""
+        reasons = list(verdict(current, f.model).reasons) + ([f.veto] if f.veto else [])
+        if reasons:
+            return reasons, None
+        mag = self.plugin.magnitude(f.model, f.name)
+        if not mag.excludes_zero:
+            return [f"its magnitude's 95 % interval includes 0 ({mag.value:.3g} {mag.unit}, "
+                    f"[{mag.ci95[0]:.3g}, {mag.ci95[1]:.3g}])"], None
+        drop = self.plugin.without(f.model, f.name, self.budget)
+        dv = verdict(drop, f.model)
+        row["drop_test_gain"] = dv.gain
+        if dv.accepted:
+            return [], None
+        return [f"drop test: the model without it, refitted from the same point, predicts the held-back data as "
+                f"well ({dv.gain:.4g}x)"], drop
 
     def _accept(self, current: Fitted, winner: CandidateFit, fits: list[CandidateFit], k: int) -> Fitted:
         name = winner.name

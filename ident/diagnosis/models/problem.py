@@ -129,6 +129,8 @@ class ModelProblem(OutputError):
         cols = []
         for i in range(theta.size):
             h = 3e-8 if i < 3 else 1e-6
+            if self.fd_steps is not None and i < self.fd_steps.size:  # the continuation's search steps
+                h = max(h, float(self.fd_steps[i]))
             up, down = theta.copy(), theta.copy()
             up[i] = min(theta[i] + h, hi[i])
             down[i] = max(theta[i] - h, lo[i]) if self.central or up[i] == theta[i] else theta[i]

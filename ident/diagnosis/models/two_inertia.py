@@ -197,24 +197,33 @@ class TwoInertiaPlugin(ModelPlugin):
         coords = coordinates(name, model.state.scales)
         gridded = {k for point in grid(name, model.state.scales) for k in point}
         linear = [c for c in coords if c.name not in gridded]
-        points, sizes = [], {}
+        points, sizes = [], []
         for point in grid(name, model.state.scales):
-            cols = [self._column(model, name, c.name, point, r) for c in linear]
-            B = np.column_stack(cols)
-            lm, robust, step, ok = score_test(r, Q, B, tuple(c.from_zero for c in linear))
-            base_step = -np.linalg.lstsq(J, r + B @ step, rcond=None)[0]
-            values = {**{k: next(c for c in coords if c.name == k).value(v) for k, v in point.items()},
-                      **{c.name: c.value(float(x)) for c, x in zip(linear, step)}}
-            points.append((values, lm, robust, np.concatenate([base_step, step]), ok))
-            sizes[len(points) - 1] = {c.name: c.scale * SCREEN_RESPONSE_SIGMA / max(rms(col), 1e-300)
-                                      for c, col in zip(linear, cols)}
+            entry, size = self._grid_point(model, name, point, coords, linear, r, J, Q)
+            points.append(entry)
+            sizes.append(size)
         test = best_of_grid(name, points, len(linear), len(linear) == 1 and linear[0].from_zero)
-        best = next(i for i, p in enumerate(points) if p[0] is test.grid_point or p[0] == test.grid_point)
+        best = next(i for i, p in enumerate(points) if p[0] == test.grid_point)
         test.start = dict(test.grid_point)
         test.sensitivity = sizes[best]
         test.grid_point = {k: v for k, v in test.start.items() if k in gridded}
         test.step = test.step[:J.shape[1]]
         return test
+
+    def _grid_point(self, model: Fitted, name: str, point: dict[str, float], coords: tuple[Any, ...],
+                    linear: list[Any], r: np.ndarray, J: np.ndarray, Q: np.ndarray
+                    ) -> tuple[tuple[Any, ...], dict[str, float]]:
+        """One grid point's score test: (the coordinates' values at the step, statistic, robust statistic, the
+        whole step, admissible) and the one-sigma size of each linear coordinate."""
+        cols = [self._column(model, name, c.name, point, r) for c in linear]
+        B = np.column_stack(cols)
+        lm, robust, step, ok = score_test(r, Q, B, tuple(c.from_zero for c in linear))
+        base_step = -np.linalg.lstsq(J, r + B @ step, rcond=None)[0]
+        by_name = {c.name: c for c in coords}
+        values = {**{k: by_name[k].value(v) for k, v in point.items()},
+                  **{c.name: c.value(float(x)) for c, x in zip(linear, step)}}
+        sizes = {c.name: c.scale * SCREEN_RESPONSE_SIGMA / max(rms(col), 1e-300) for c, col in zip(linear, cols)}
+        return (values, lm, robust, np.concatenate([base_step, step]), ok), sizes
 
     def _column(self, model: Fitted, name: str, coord: str, point: dict[str, float], r: np.ndarray) -> np.ndarray:
         """d(load residual)/dx of coordinate ``coord`` of effect ``name`` at 0 (the other coordinates at
