@@ -15,6 +15,7 @@ import os
 import sys
 from typing import Any, Sequence
 
+from .diagnosis import DEFAULT_BUDGET as DEFAULT_CANDIDATE_BUDGET
 from .model.params import DriveParams, ParameterError, parse_assignments
 from .protocols.controllers import SettleError
 from .protocols.resolution import NoConsistentStep, ThresholdNotFound
@@ -279,17 +280,16 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
         from .studies.emps import emps_reference
 
         reference = emps_reference(log, holdout)
+    # progress goes to stderr always (also with --json, whose stdout holds only the JSON)
     diag = diagnose(log, model=args.model, holdout=holdout, out_dir=args.out, max_effects=args.max_effects,
-                    reference=reference,
-                    resolution_pulses=args.pulses, workers=args.workers, progress=not args.json,
-                    candidate_budget_s=args.candidate_budget if args.candidate_budget > 0 else None)
+                    reference=reference, resolution_pulses=args.pulses, workers=args.workers,
+                    scheduler=args.scheduler, progress=True,
+                    budget=args.candidate_budget if args.candidate_budget > 0 else None)
     out = diag.to_dict()
     if not args.json:
         print(diag.to_frame().to_string(index=False))
-        for e in diag.effects:
-            print(f"named: {e.name} = {e.magnitude:.4g} {e.unit} (95 % {e.ci95[0]:.4g} .. {e.ci95[1]:.4g})")
-        for u in diag.unexplained:
-            print(f"unexplained: {u['regime']}: {u['detail']}")
+        for line in diag.summary:
+            print(line)
         if diag.files.get("report"):
             print(f"wrote {diag.files['report']}" + (f" and {diag.fmu}" if diag.fmu else ""))
     return out
@@ -476,11 +476,15 @@ def _add_diagnose(sub: Any) -> None:
     p.add_argument("--max-effects", type=int, default=3, help="stop after naming this many effects (default 3; 0 checks the base model only)")
     p.add_argument("--pulses", type=int, default=200,
                    help="pulses per impulse experiment for each model's predicted resolution (0: skip; default 200)")
-    p.add_argument("--workers", type=int, default=0,
-                   help="candidates refitted in parallel on this many local Dask workers (default 0: serial)")
-    p.add_argument("--candidate-budget", type=float, default=300.0, metavar="SECONDS",
-                   help="wall time allowed to each candidate's fit; one not fitted in time is reported as such "
-                        "(default 300; 0: unlimited)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="candidates screened and refitted in parallel on this many local Dask worker processes "
+                        "(default: the machine's cores; 0: serially in this process, no Dask)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the candidates on this dask.distributed cluster")
+    p.add_argument("--candidate-budget", type=float, default=DEFAULT_CANDIDATE_BUDGET, metavar="EVALUATIONS",
+                   help="simulations of the training part allowed to each candidate's fit (an evaluation count, so "
+                        "the answer does not depend on the machine's speed); a candidate that needs more is reported "
+                        "as not ruled out and no effect is then named more than tentatively (default "
+                        f"{DEFAULT_CANDIDATE_BUDGET:g}; 0: unlimited)")
     p.set_defaults(func=cmd_diagnose)
 
 

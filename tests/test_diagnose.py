@@ -1,272 +1,296 @@
-"""The discrepancy workflow on logs in which an effect is hidden (issue 5 item 6).
+"""The discrepancy loop on logs it did not make (issue 16).
 
-Each "measured" log comes from the FMU with one effect of the library switched on at a realistic magnitude
-(``ident.fitting.synthetic.HIDDEN_EFFECT_CASES``), encoder quantization, 2 nm load noise and a seeded random excitation that
-is not the identifier's default. The workflow starts from the base model and must name the hidden effect (nothing
-on a clean log, both when two are hidden), shrink the load NRMSE at least 5x and recover the magnitude within 10 %.
-
-The whole matrix (10 diagnoses of 4 s logs, plus an effect outside the library) takes ~30 minutes on 2 cores: it is
-marked ``slow`` and run by ``bench/diagnose.py`` (figures in bench/README.md); the default run keeps the clean log,
-one hidden effect, the CLI and the error handling.
+Every log here comes from the independent generator (``tests/reference/generator``: its own hybrid integrator,
+no code shared with the FMU or ``ident``), in the product's file format, read by ``ident.read_log``; the seeds
+(5501-5505) appear nowhere in the product. The default run keeps short logs (3 s at 5 kHz): a clean log (nothing
+named, every candidate rejected by the screen with its statistic), a hidden hardening of the library's shape (named,
+confident, magnitude within 10 %, the same answer serially and on two workers), a budget too small to fit it (not
+named confidently: the candidate is not ruled out), the rigid start (flexibility passes the same acceptance rule),
+the command line (JSON on stdout, progress on stderr, the fitted FMU), Ctrl-C (stops within 2 s with workers
+running), and the statistics of the screen and the acceptance rule against closed forms. The randomized matrix of
+the issue (166 logs) is ``test_matrix`` (slow) and ``bench/diagnose.py``.
 """
 from __future__ import annotations
 
 import json
 import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import pytest
+from scipy import stats
 
-from ident.diagnosis.engine import diagnose
-from ident.fitting.logs import LogError, write_log
-from ident.fitting.synthetic import HIDDEN_EFFECT_CASES, OUT_OF_LIBRARY_CASES, hidden_effect_log, out_of_library_log
-from ident.model.effects import EFFECTS
-from ident.model.params import DriveParams
+from ident.diagnosis import screening
+from ident.diagnosis.engine import MIN_GAIN, diagnose, dm_pvalue, verdict
+from ident.diagnosis.models import Fitted
+from ident.fitting.logs import LogError
+from tests.diagnosis_matrix import Case, library_truth, load
 
-_cache: dict[tuple[str, float], object] = {}
+SHORT = dict(duration_s=3.0, rate_hz=5000.0)
+CLEAN = Case("clean", 5501)
+HARDENING = Case("single", 5502, "hardening", "strong", "default", "cubic")
+_cache: dict = {}
 
 
-def run(case: str, duration: float = 6.0, stop_at_noise: bool = True):
-    key = (case, duration, stop_at_noise)
+def diagnosed(case: Case, **options):
+    key = (case, tuple(sorted(options.items())))
     if key not in _cache:
-        log = hidden_effect_log(case, duration)
-        _cache[key] = diagnose(log, model="rigid" if case == "flexibility" else "two-inertia", resolution_pulses=0,
-                               workers=2, stop_at_noise=stop_at_noise)
+        log, truth = load(case, **SHORT)
+        _cache[key] = (diagnose(log, resolution_pulses=0, export_fmu=False, **options), truth)
     return _cache[key]
 
 
-def truth_of(case: str, name: str) -> float | None:
-    """The hidden magnitude of effect ``name`` in ``case`` (flexibility: the nominal K_s)."""
-    hidden = HIDDEN_EFFECT_CASES[case][0]
-    if name == "flexibility":
-        return DriveParams().K_s
-    value = hidden.get(EFFECTS[name].magnitude_param)
-    return None if value is None else abs(value)
+# ------------------------------------------------------------------------------------------ statistics ----------
+
+def test_score_test_is_the_regression_lm_statistic():
+    """On a linear model the score statistic is n R^2 of the residual on the new regressor (after the old ones),
+    the step is the least-squares coefficient, and the statistic is chi-square distributed under the null."""
+    rng = np.random.default_rng(11)
+    n = 4000
+    X = np.column_stack([np.ones(n), rng.normal(size=n)])
+    z = rng.normal(size=n)
+    y = X @ [1.0, 2.0] + 0.05 * z + rng.normal(size=n)
+    beta = np.linalg.lstsq(X, y, rcond=None)[0]
+    r = X @ beta - y                                  # model - data, the loop's convention
+    lm, robust, step, ok = screening.score_test(r, screening.partial_out(X), z[:, None], (False,))
+    resid_z = z - X @ np.linalg.lstsq(X, z, rcond=None)[0]
+    r2 = (r @ resid_z) ** 2 / ((r @ r) * (resid_z @ resid_z))
+    assert lm == pytest.approx((n - 3) * r2, rel=1e-9)
+    full = np.linalg.lstsq(np.column_stack([X, z]), y, rcond=None)[0]
+    assert step[0] == pytest.approx(full[2], rel=1e-9) and ok
+    nulls = []
+    for seed in range(200):                           # the null: no z in the data
+        g = np.random.default_rng(seed)
+        y0 = X @ [1.0, 2.0] + g.normal(size=n)
+        r0 = X @ np.linalg.lstsq(X, y0, rcond=None)[0] - y0
+        nulls.append(screening.score_test(r0, screening.partial_out(X), g.normal(size=(n, 1)), (False,))[0])
+    assert 0.9 < np.mean(nulls) < 1.1                 # chi-square(1) has mean 1
+    assert np.mean(np.array(nulls) > stats.chi2.ppf(0.95, 1)) < 0.1
 
 
-def check_case(case: str, duration: float, stop_at_noise: bool = True) -> None:
-    _, _, expected = HIDDEN_EFFECT_CASES[case]
-    d = run(case, duration, stop_at_noise)
-    assert sorted(e.name for e in d.effects) == sorted(expected), d.to_frame()
-    added = [s.added for s in d.steps[1:] if s.added]
-    removed = [n for s in d.steps for n in s.extra.get("removed", [])]
-    assert [n for n in added if n not in removed] == [e.name for e in d.effects]
-    if not expected:
-        assert len(d.steps) == 1 and d.unexplained == []
-        assert d.steps[0].extra["residual_over_noise_load"] < 1.5
-        return
-    assert d.steps[0].nrmse_load / d.steps[-1].nrmse_load >= 5.0
-    for e in d.effects:  # every named effect's magnitude within 10 %, its interval covering the truth
-        truth = truth_of(case, e.name)
-        assert abs(e.magnitude - truth) <= 0.10 * truth, (e.name, e.magnitude, truth)
-        assert e.ci95[0] <= truth <= e.ci95[1] or abs(e.magnitude - truth) <= 1e-3 * truth, (e.name, e.ci95)
-    assert d.unexplained == [] and d.steps[-1].extra["residual_over_noise_load"] < 1.5
+def test_screen_bounded_parameters_and_grids():
+    """A parameter that can only grow from 0 gets half the tail when the step points the right way and p = 1 when
+    it does not; a grid's best point pays for the search (p-value x grid size)."""
+    assert screening.p_value(4.0, 1, True, True) == pytest.approx(0.5 * stats.chi2.sf(4.0, 1))
+    assert screening.p_value(4.0, 1, False, True) == 1.0
+    pts = [({"v": 1.0}, 10.0, 9.0, np.array([0.1]), True), ({"v": 2.0}, 30.0, 20.0, np.array([0.2]), True),
+           ({"v": 3.0}, 50.0, 40.0, np.array([-0.3]), False)]
+    t = screening.best_of_grid("x", pts, 1, True)
+    assert t.grid_point == {"v": 2.0} and t.statistic == 30.0
+    assert t.p_value == pytest.approx(3 * 0.5 * stats.chi2.sf(30.0, 1))
 
+
+def test_acceptance_rule():
+    """Held-back gain, Diebold-Mariano and BIC: a model that predicts the held-back data better by a margin passes,
+    one that only fits noise does not."""
+    rng = np.random.default_rng(5)
+    noise = rng.normal(size=3000)
+    structure = 0.3 * np.sin(np.arange(3000) / 30.0)
+
+    def model(held: np.ndarray, k: int, train: float) -> Fitted:
+        return Fitted((), train, float(np.sum(held**2)), held**2, 7000, k)
+
+    base = model(noise + structure, 4, 7000 * 1.05)
+    better = model(noise, 5, 7000 * 1.0)
+    v = verdict(base, better)
+    assert v.accepted and v.gain > MIN_GAIN and v.dm_p < 1e-6
+    same = model(noise + structure + 1e-3 * rng.normal(size=3000), 5, 7000 * 1.0499)
+    v = verdict(base, same)
+    assert not v.accepted and v.reasons
+    assert dm_pvalue(noise**2, noise**2) == 1.0
+
+
+# ------------------------------------------------------------------------------------------ diagnoses -----------
 
 def test_clean_log_names_nothing():
-    # every candidate is refitted and must be rejected on its merits (the noise-floor stop would skip them)
-    check_case("clean", 3.0, stop_at_noise=False)
-    d = run("clean", 3.0, False)
-    assert len(d.steps[0].candidates) == 7 and d.steps[0].candidates["error"].isna().all()
+    """A log without a hidden effect: every candidate is screened, reported with its statistic, none passes, nothing
+    is refitted or named, and the conclusions say the model explains the log down to the noise."""
+    d, _ = diagnosed(CLEAN, workers=0)
+    assert d.effects == [] and len(d.steps) == 1
+    screen = d.steps[0].screen
+    assert len(screen) == 7 and not screen.passed.any() and screen.lm_statistic.notna().all()
+    assert d.steps[0].candidates.empty
+    assert any("no library effect" in s for s in d.summary)
+    assert any("down to the sensor noise" in s for s in d.summary) and d.unexplained == []
 
 
-def test_clean_log_stops_at_the_noise_floor():
-    d = diagnose(hidden_effect_log("clean", 2.0), resolution_pulses=0, export_fmu=False)
-    assert d.effects == [] and len(d.steps[0].candidates) == 0
-    assert 0.97 < d.steps[0].extra["residual_over_noise_load"] < 1.03  # the log's noise is 2 nm at the arm tip
-    assert any("down to its sensor noise" in n for n in d.notes)
+def test_hidden_hardening_is_named_with_its_magnitude():
+    """A hardening of the library's (cubic) shape at the 'strong' class: the screen ranks it first, the refit names
+    it confidently, its magnitude is within 10 % of the truth and its interval covers it; the same answer on two
+    worker processes as serially (no decision depends on time or the order workers finish in)."""
+    d, truth = diagnosed(HARDENING, workers=2)
+    assert [e.name for e in d.effects] == ["hardening"], d.summary
+    e = d.effects[0]
+    ref = library_truth("hardening", truth)
+    assert not e.tentative and abs(e.magnitude - ref) <= 0.10 * ref, (e.magnitude, ref)
+    assert e.ci95[0] <= ref <= e.ci95[1] or abs(e.magnitude - ref) <= 1e-3 * ref
+    assert d.steps[0].screen.iloc[0].candidate == "hardening"
+    assert e.runner_up is not None and "runner-up" in e.evidence
+    serial, _ = diagnosed(HARDENING, workers=0)
+    assert [x.name for x in serial.effects] == ["hardening"] and serial.effects[0].magnitude == e.magnitude
 
 
-def test_hidden_hardening_is_named_and_measured():
-    check_case("hardening", 4.0)
-    d = run("hardening", 4.0)
-    row = d.steps[0].candidates.iloc[0]
-    assert row["candidate"] == "hardening" and row["heldback_gain"] > 5
-    assert d.effects[0].runner_up is not None and d.effects[0].margin > 1.5
+def test_a_candidate_out_of_budget_blocks_a_confident_name():
+    """With a budget too small to fit any candidate, nothing is named confidently: the candidates are listed as
+    not ruled out, and the conclusions say so."""
+    d, _ = diagnosed(HARDENING, workers=0, budget=1.0, max_effects=1)
+    assert all(e.tentative for e in d.effects)
+    assert d.not_ruled_out and {"step", "candidate", "reason"} <= set(d.not_ruled_out[0])
+    assert any("cannot be ruled out" in s for s in d.summary)
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("case", list(HIDDEN_EFFECT_CASES))
-def test_hidden_effect_matrix(case):
-    check_case(case, 4.0)
+def test_rigid_start_names_flexibility_by_the_acceptance_rule():
+    """From the rigid kinematics q_l = r q_m, flexibility is named only through the rule every effect passes (its
+    held-back gain, Diebold-Mariano p and BIC change are reported), with K_s and an interval covering the truth."""
+    d, truth = diagnosed(CLEAN, workers=0, model="rigid", max_effects=1)
+    assert d.steps[0].extra.get("model", "").startswith("rigid kinematics")
+    assert d.steps[1].added == "flexibility"
+    assert d.steps[1].extra["dm_p"] < 0.01 and d.steps[1].extra["delta_bic"] < 0 and d.steps[1].score > 1.01
+    e = d.effects[0]
+    K = truth["si"]["K_s"]
+    assert e.name == "flexibility" and e.ci95[0] <= K <= e.ci95[1] and abs(e.magnitude / K - 1) < 1e-3
+    assert d.steps[0].screen.iloc[0].candidate == "flexibility" and "fitted directly" in d.steps[0].screen.iloc[0].note
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("case", list(OUT_OF_LIBRARY_CASES))
-def test_effect_outside_the_library_is_not_attributed(case):
-    """Issue 5 item 5: an effect the library does not have (the amplifier's lag between the logged torque command
-    and the motor torque) leaves structure no candidate removes: nothing may be named, the report must say that the
-    residual stays far above the noise and where it sits."""
-    d = diagnose(out_of_library_log(case, 4.0), resolution_pulses=0, workers=2)
-    assert d.effects == [], d.to_frame()
-    assert d.unexplained and all(u["regime"] and "no library effect" in u["detail"] for u in d.unexplained)
-    assert d.steps[-1].extra["residual_over_noise_load"] > 100
-    assert any("x the load sensor noise" in n for n in d.notes)
+def test_cli_json_progress_and_fmu(tmp_path):
+    """``hdrive diagnose --json``: JSON on stdout, progress on stderr, the report, diagnosis.json and the fitted
+    FMU whose start values are the final model."""
+    log, _ = load(CLEAN, duration_s=2.0, rate_hz=5000.0)
+    from ident.fitting.logs import write_log
 
-
-def test_cli_json_and_report(tmp_path):
-    from ident.cli import main
-
-    log = hidden_effect_log("clean", 2.0)
     path = tmp_path / "log.csv"
     write_log(log, path)
     out = tmp_path / "out"
-    import contextlib
-    import io
-
-    buf = io.StringIO()
-    with contextlib.redirect_stdout(buf):
-        code = main(["diagnose", str(path), "--json", "--out", str(out), "--max-effects", "0", "--pulses", "50"])
-    assert code == 0
-    data = json.loads(buf.getvalue())
-    assert {"steps", "effects", "unexplained", "fmu"} <= set(data)
-    step = data["steps"][0]
-    assert step["added"] is None and {"nrmse_load", "nrmse_motor", "relative_error_pct", "score"} <= set(step)
-    assert step["nrmse_load"] < 1e-3 and step["predicted_resolution_m"] > 0   # the CLI's JSON is SI
-    assert (out / "diagnosis.md").is_file() and (out / "residual_vs_time.png").is_file()
-    # the exported FMU carries the fitted values as start values and simulates with them
+    proc = subprocess.run([sys.executable, "-m", "ident", "diagnose", str(path), "--json", "--out", str(out),
+                           "--max-effects", "1", "--pulses", "20", "--workers", "0"], capture_output=True, text=True,
+                          env=_env(), timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(proc.stdout)
+    assert "[diagnose" in proc.stderr and "fitting the base" in proc.stderr
+    assert {"summary", "steps", "effects", "unexplained", "not_ruled_out", "fmu", "derivations"} <= set(data)
+    assert data["steps"][0]["predicted_resolution_m"] > 0
+    assert (out / "diagnosis.md").is_file() and (out / "diagnosis.json").is_file()
     from fmpy import read_model_description
 
-    md = read_model_description(data["fmu"])
-    starts = {v.name: v.start for v in md.modelVariables}
+    starts = {v.name: v.start for v in read_model_description(data["fmu"]).modelVariables}
     assert math.isclose(float(starts["K_s"]), data["steps"][-1]["params"]["K_s"], rel_tol=1e-12)
 
 
+def test_ctrl_c_stops_within_two_seconds(tmp_path):
+    """Ctrl-C while the candidates are refitted on two worker processes: the command exits within 2 s, leaves no
+    worker behind and writes no report."""
+    log, _ = load(HARDENING, **SHORT)
+    from ident.fitting.logs import write_log
+
+    path = tmp_path / "log.csv"
+    write_log(log, path)
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "ident", "diagnose", str(path), "--out", str(out), "--pulses", "0",
+                             "--workers", "2"], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
+                            env=_env())
+    try:
+        for line in proc.stderr:
+            if "refitting" in line:
+                break
+        time.sleep(0.5)
+        workers = _descendants(proc.pid)
+        t0 = time.perf_counter()
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=30)
+        elapsed = time.perf_counter() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert elapsed < 2.0, elapsed
+    assert proc.returncode != 0 and not out.exists()
+    assert workers, "no worker processes were running"
+    time.sleep(0.5)
+    assert not [p for p in workers if _alive(p)]
+
+
 def test_bad_input():
-    log = hidden_effect_log("clean", 1.0)
+    log, _ = load(CLEAN, duration_s=1.0, rate_hz=5000.0)
     from dataclasses import replace
 
     with pytest.raises(LogError, match="load_pos_rad"):
         diagnose(replace(log, load_pos_rad=None))
     with pytest.raises(ValueError, match="unknown effect"):
-        diagnose(log, candidates=("magic",))
+        diagnose(log, candidates=("magic",), workers=0)
     with pytest.raises(ValueError, match="model"):
         diagnose(log, model="three-inertia")
+    with pytest.raises(ValueError, match="budget"):
+        diagnose(log, budget=0.0)
     other = replace(log, time_s=np.arange(log.n) / 1000.0, meta=replace(log.meta, sample_rate_hz=1000.0))
     with pytest.raises(LogError, match="sample rate"):
-        diagnose(log, holdout=other)
+        diagnose(log, holdout=other, workers=0)
 
 
-def test_identify_with_an_effect_from_scratch():
-    """``identify.fit_pipeline`` with an effect in the model (what a candidate 'from scratch' and the convergence
-    of an accepted effect run): from the effect's library starting points alone, the hidden viscous load friction and
-    the drive's K*, J_l*, f_l* come back to the generating values."""
-    from ident.diagnosis.engine import EffectProblem
-    from ident.fitting.identify import fit_pipeline, identify
+def test_data_errors_are_caught_before_any_effect_is_named():
+    """Issue 16 item 6: a sidecar sample rate 0.8 % off the time column, or a gear ratio twice the true one, is the
+    identifier's data-check error before anything is fitted (before: a phantom kinematic error was named)."""
+    from dataclasses import replace
 
-    log = hidden_effect_log("viscous_load", 1.5)
-    base = identify(log).params  # the base model (bent: it lacks the damping); only its meta data matter here
-    rows = np.array(EFFECTS["viscous_load"].starts)
-    problem, theta, _, _, stages = fit_pipeline(log, base, EffectProblem.maker(("viscous_load",), base), rows)
-    try:
-        p = problem.params(theta)
-    finally:
-        problem.close()
-    truth = DriveParams()
-    assert abs(p.b_l - 1.0) < 1e-3
-    for name in ("K_star", "J_l_star", "f_l_star"):
-        assert abs(getattr(p, name) / getattr(truth, name) - 1) < 1e-3, name
+    log, _ = load(CLEAN, **SHORT)
+    with pytest.raises(LogError, match="sample"):
+        diagnose(replace(log, meta=replace(log.meta, sample_rate_hz=log.meta.sample_rate_hz * 1.008)), workers=0)
+    with pytest.raises(LogError, match="ratio|gear"):
+        diagnose(replace(log, meta=replace(log.meta, r=2 * log.meta.r)), workers=0)
 
+
+# ------------------------------------------------------------------------------------------ the matrix (slow) ----
 
 @pytest.mark.slow
-@pytest.mark.parametrize("ratio,v_s", [(0.7, 5e-5), (0.35, 2e-4), (0.5, 1e-4), pytest.param(1.2, 3e-4, marks=(
-    pytest.mark.xfail(strict=False, reason="measured 2026-11-22 (still failing 2026-11-23): the first window (1.5 s) "
-                      "fits s 0.87, v_s 8.6e-4 to its noise; the later windows cannot leave that basin (ends at "
-                      "s 0.91, load NRMSE 13 %)")))])
-def test_stribeck_candidate_from_scratch(ratio, v_s):
-    """A Stribeck candidate identified from scratch (what the diagnosis runs when the base model leans on a bound)
-    recovers generating values that are not among the library's starting points: the static/Coulomb ratio within
-    10 %, v_s within a factor 1.5, K*, J_l*, f_l* within 1 %."""
-    from ident.diagnosis.engine import FRESH_STAGE_ITER, EffectProblem, split_training, truncate_log
-    from ident.fitting.identify import fit_pipeline, identify
-    from ident.fitting.synthetic import diagnosis_excitation, synthetic_log
+def test_matrix(tmp_path_factory):
+    """The issue's randomized matrix (``tests/diagnosis_matrix.py``) at the generator's own durations and rates:
+    the right effect named in >= 90 % of single-effect logs, nothing named on any clean log, both effects in >= 80 %
+    of two-effect logs, no confident name on any log with an effect outside the library and "unexplained" on most;
+    magnitudes within 10 % where the shape is the library's (>= 90 % of them)."""
+    from tests.diagnosis_matrix import matrix, run_case, summarize
 
-    truth = DriveParams().with_values(stribeck_ratio=ratio, stribeck_velocity=v_s)
-    log = synthetic_log(truth, diagnosis_excitation(truth, 4.0, 5000.0, seed=3), duration_s=4.0, seed=5,
-                        load_offset_rad=1e-3)
-    train = truncate_log(*split_training(log, None))
-    base = identify(train).params
-    rows = np.array(EFFECTS["stribeck"].starts)
-    problem, theta, _, _, _ = fit_pipeline(train, base, EffectProblem.maker(("stribeck",), base), rows,
-                                           stage_iter=FRESH_STAGE_ITER)
+    results = [run_case(c, workers=2) for c in matrix()]
+    s = summarize(results)
+    (tmp_path_factory.mktemp("matrix") / "matrix.json").write_text(json.dumps({"summary": s, "results": results},
+                                                                             default=str))
+    c = s["classes"]
+    assert c["single"]["success"] >= 0.9 * c["single"]["logs"], s
+    assert c["clean"]["success"] == c["clean"]["logs"], s
+    assert c["two_effect"]["success"] >= 0.8 * c["two_effect"]["logs"], s
+    assert c["outside"]["success"] == c["outside"]["logs"], s
+    assert c["outside"]["logs_with_unexplained"] > 0.5 * c["outside"]["logs"], s
+    assert s["magnitudes"]["within_10pct"] >= 0.9 * s["magnitudes"]["n"], s
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(Path(__file__).resolve().parents[1]) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def _descendants(pid: int) -> list[int]:
+    """Every process below ``pid`` (its Dask workers and their helpers)."""
+    parents: dict[int, int] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                parents[int(entry.name)] = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        kids = [c for c, pp in parents.items() if pp == p]
+        out += kids
+        todo += kids
+    return out
+
+
+def _alive(pid: int) -> bool:
     try:
-        p = problem.params(theta)
-    finally:
-        problem.close()
-    assert abs(p.stribeck_ratio / ratio - 1) < 0.1, p.stribeck_ratio
-    assert 1 / 1.5 < p.stribeck_velocity / v_s < 1.5, p.stribeck_velocity
-    for name in ("K_star", "J_l_star", "f_l_star"):
-        assert abs(getattr(p, name) / getattr(truth, name) - 1) < 0.01, name
-
-
-def test_extra_scan_steps_each_effect_jointly():
-    """The continuation's scan of effect unknowns: per effect a product grid (log-variables +-0.55, +-1.1; others
-    +-15 %, +-30 % of their value), the base unknowns untouched; the identifier's own problem has none."""
-    from ident.diagnosis.engine import EffectProblem
-    from ident.fitting.identify import OutputError
-
-    log = hidden_effect_log("clean", 0.3)
-    with_effects = EffectProblem(log, DriveParams(), ("stribeck", "hardening"), 500, 1e-8)
-    plain = OutputError(log, DriveParams(), 500, 1e-8)
-    try:
-        theta = np.array([13.8, 7.8, -2.3, 0.1, 0.5, -4.6, 0.2])
-        steps = np.array(with_effects.extra_scan(theta))
-        assert plain.extra_scan(theta[:4]) == []
-    finally:
-        with_effects.close()
-        plain.close()
-    assert steps.shape == (5 * 5 - 1 + 4, 7) and not steps[:, :4].any()
-    stribeck, hardening = steps[:24], steps[24:]
-    assert not stribeck[:, 6].any() and not hardening[:, 4:6].any()
-    assert sorted(set(np.round(stribeck[:, 5], 6))) == [-1.1, -0.55, 0.0, 0.55, 1.1]
-    assert sorted(set(np.round(stribeck[:, 4], 6))) == [-0.15, -0.075, 0.0, 0.075, 0.15]
-    assert sorted(np.round(hardening[:, 6], 6)) == [-0.06, -0.03, 0.03, 0.06]
-
-
-def test_a_point_the_fmu_cannot_simulate_scores_inf_in_grids():
-    """Grids and scans score every point; one where the FMU's state overflows (here a far too hard spring, the corner
-    a from-scratch hardening candidate reached on the Stribeck log) must rank last, not abort the candidate, while
-    the residuals themselves still raise (IPOPT treats that as an evaluation error and steps back)."""
-    from ident.diagnosis.engine import EffectProblem
-    from ident.model.plant import PlantError
-
-    problem = EffectProblem(hidden_effect_log("clean", 0.5), DriveParams(), ("hardening",), 2000, 1e-8)
-    try:
-        wild = np.array([9.36863, 13.8155, 2.71448, -5.10527, 219.5])
-        assert problem.cost(wild) == math.inf
-        with pytest.raises(PlantError, match="overflowed"):
-            problem.residuals(wild)
-        assert math.isfinite(problem.cost(np.array([math.log(1e6), math.log(2500.0), math.log(0.1), 0.0, 0.0])))
-    finally:
-        problem.close()
-
-
-def test_a_refreshed_step_reports_its_new_models_metrics():
-    """A step re-recorded after a better-converged model replaced its model passes its old extras along; the
-    metrics must be the new model's (a stale residual/noise of 233,115 was reported beside an NRMSE of 1.4e-4)."""
-    from ident.diagnosis.engine import EffectProblem, diagnosis_step, evaluate_model
-
-    log = hidden_effect_log("clean", 0.5)
-    problem = EffectProblem(log, DriveParams(), (), 1500, 6.7e-9)
-    try:
-        model = evaluate_model(log, problem, np.array([math.log(1e6), math.log(2500.0), math.log(0.1), 0.0]), 6.7e-9)
-    finally:
-        problem.close()
-    step = diagnosis_step(None, model, None, pd.DataFrame(), 0, {"residual_over_noise_load": 233115.0, "refreshed": True})
-    m = model.metrics
-    assert step.extra["refreshed"] and step.extra["residual_over_noise_load"] == m["residual_over_noise_load"]
-    assert math.isclose(m["residual_over_noise_load"] * 6.7e-9 / step.nrmse_load, np.std(log.load_pos_rad))
-
-
-def test_candidates_out_of_time_are_reported_not_named():
-    """When the candidates' fits run out of their time budget, nothing is named in their place: the candidate
-    table gives the reason, and the diagnosis says it cannot rule them out and where the residual sits."""
-    d = diagnose(hidden_effect_log("hardening", 2.0), resolution_pulses=0, export_fmu=False,
-                 candidates=("hardening", "viscous_load"), candidate_budget_s=1e-3)
-    assert d.effects == [] and len(d.steps) == 1
-    table = d.steps[0].candidates
-    assert sorted(set(table.candidate)) == ["hardening", "viscous_load"]
-    assert table.error.str.contains("time budget of 0.001 s").all()
-    assert any("hardening, viscous_load could not be fitted" in n and "cannot rule them out" in n for n in d.notes)
-    assert d.unexplained
+        return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+    except OSError:
+        return False

@@ -17,7 +17,8 @@ class DiagnosisStep:
     """One model of the sequence: what was added, how well it fits (on the held-back data) and its candidates.
 
     ``score``: the evidence for the added effect: the held-back cost ratio (cost without / cost with the effect;
-    1 = no gain); ``None`` for the base model. ``candidates`` ranks every candidate tried at this step.
+    1 = no gain); ``None`` for the base model. ``screen`` holds the score test of every candidate at this step's
+    model (``ident.diagnosis.screening``); ``candidates`` the ones refitted, with the acceptance rule's numbers.
     """
 
     added: str | None
@@ -29,18 +30,21 @@ class DiagnosisStep:
     candidates: pd.DataFrame = field(default_factory=pd.DataFrame)
     predicted_resolution_um: float | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    screen: pd.DataFrame = field(default_factory=pd.DataFrame)
 
     def to_dict(self) -> dict[str, Any]:
         return {"added": self.added, "nrmse_load": self.nrmse_load, "nrmse_motor": self.nrmse_motor,
                 "relative_error_pct": self.relative_error_pct, "score": self.score,
                 "predicted_resolution_um": self.predicted_resolution_um, "params": self.params,
-                "candidates": self.candidates.to_dict(orient="records"), **self.extra}
+                "screen": _records(self.screen), "candidates": _records(self.candidates), **self.extra}
 
 
 @dataclass
 class NamedEffect:
     """An effect the workflow named: its fitted magnitude (``unit``) with a 95 % interval, the evidence, and how
-    sure the choice was against the runner-up (``margin``: the winner's held-back score / the runner-up's)."""
+    sure the choice was against the runner-up (``margin``: the runner-up's held-back cost / the winner's).
+    ``tentative``: the name is the library's best improvement, not an explanation; ``why_tentative`` says why
+    (the final model stays above the noise, or a candidate could not be fitted and was not ruled out)."""
 
     name: str
     magnitude: float
@@ -50,10 +54,13 @@ class NamedEffect:
     runner_up: str | None
     margin: float | None
     params: dict[str, float] = field(default_factory=dict)
+    tentative: bool = False
+    why_tentative: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "magnitude": self.magnitude, "ci95": list(self.ci95), "unit": self.unit,
-                "evidence": self.evidence, "runner_up": self.runner_up, "margin": self.margin, "params": self.params}
+                "evidence": self.evidence, "runner_up": self.runner_up, "margin": self.margin, "params": self.params,
+                "tentative": self.tentative, "why_tentative": self.why_tentative}
 
 
 @dataclass
@@ -69,12 +76,18 @@ class Diagnosis:
     files: dict[str, str] = field(default_factory=dict)
     elapsed_s: float = 0.0
     notes: list[str] = field(default_factory=list)
+    not_ruled_out: list[dict[str, Any]] = field(default_factory=list)   # candidates that could not be fitted
+    derivations: list[str] = field(default_factory=list)   # how the grids and scales follow from the data
+    summary: list[str] = field(default_factory=list)       # the conclusions, each computed from the numbers
+    fmu_note: str = ""                                      # what the exported FMU is, or why there is none
+    budget: float | None = None                             # simulations allowed per candidate (training logs)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"model": self.model, "steps": [s.to_dict() for s in self.steps],
-                "effects": [e.to_dict() for e in self.effects], "unexplained": self.unexplained, "fmu": self.fmu,
-                "residual_table": self.residual_table.to_dict(orient="records"), "files": self.files,
-                "elapsed_s": self.elapsed_s, "notes": self.notes}
+        return {"model": self.model, "summary": self.summary, "steps": [s.to_dict() for s in self.steps],
+                "effects": [e.to_dict() for e in self.effects], "unexplained": self.unexplained,
+                "not_ruled_out": self.not_ruled_out, "fmu": self.fmu, "fmu_note": self.fmu_note,
+                "residual_table": _records(self.residual_table), "files": self.files, "elapsed_s": self.elapsed_s,
+                "budget_training_logs": self.budget, "derivations": self.derivations, "notes": self.notes}
 
     def to_frame(self) -> pd.DataFrame:
         """One row per step: what was added and the gap after it."""
@@ -97,3 +110,11 @@ class PublishedReference:
     params: dict[str, float]
     notes: list[str] = field(default_factory=list)
 
+
+
+def _records(table: pd.DataFrame) -> list[dict[str, Any]]:
+    """A table as JSON-ready records (NaN as None)."""
+    if table is None or table.empty:
+        return []
+    return [{k: (None if isinstance(v, float) and v != v else v) for k, v in row.items()}
+            for row in table.to_dict(orient="records")]

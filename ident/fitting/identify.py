@@ -53,12 +53,13 @@ from .start import StartError, dominant_frequency, equation_error_start, standst
 
 __all__ = [
     "BOUNDS",
+    "BudgetExceeded",
+    "EvaluationBudget",
     "NAMES",
     "Z95",
     "Estimate",
     "IdentificationError",
     "OutputError",
-    "TimeBudgetExceeded",
     "TwoInertiaFit",
     "at_bound",
     "covariances",
@@ -94,8 +95,24 @@ class IdentificationError(RuntimeError):
     """The log cannot support the requested estimate (e.g. nothing moved)."""
 
 
-class TimeBudgetExceeded(RuntimeError):
-    """A fit ran past the wall-clock deadline its caller gave it (``OutputError.deadline``)."""
+class BudgetExceeded(RuntimeError):
+    """A fit used up the simulations its caller allowed it (``OutputError.budget``)."""
+
+
+class EvaluationBudget:
+    """Simulations a fit may run, counted in samples simulated (a simulation of ``stop`` samples costs ``stop``), so
+    that a budget means the same on any machine and for any window length; one budget can span the many problems of
+    a continuation (``fit_pipeline``). ``limit`` None: unlimited (the count is still kept)."""
+
+    def __init__(self, limit: float | None = None):
+        self.limit = limit
+        self.used = 0.0
+
+    def charge(self, samples: int) -> None:
+        """Count a simulation of ``samples`` samples; raise ``BudgetExceeded`` if the budget cannot pay for it."""
+        if self.limit is not None and self.used + samples > self.limit:
+            raise BudgetExceeded(f"the fit used up its budget of {self.limit / max(samples, 1):.4g} simulations")
+        self.used += samples
 
 
 # ------------------------------------------------------------------------------------------- problem -----------
@@ -128,7 +145,8 @@ class OutputError:
         self.verbose = False        # IPOPT's own output (``fit_ipopt``)
         self.fd_steps: np.ndarray | None = None  # wider finite-difference steps while searching (``jacobian``)
         self.interrupted = False    # a KeyboardInterrupt arrived inside a CasADi callback (``fit_ipopt``)
-        self.deadline: float | None = None  # time.monotonic() after which no further simulation is started
+        self.budget: EvaluationBudget | None = None  # simulations allowed (None: unlimited)
+        self.exhausted = False      # a simulation was refused by the budget (``fit_ipopt`` raises BudgetExceeded)
         self._cache: dict[bytes, np.ndarray] = {}
 
     def params(self, theta: np.ndarray) -> DriveParams:
@@ -159,9 +177,16 @@ class OutputError:
     def residuals(self, theta: np.ndarray) -> np.ndarray:
         if getattr(self, "interrupted", False):  # Ctrl-C while IPOPT runs (``_sigint_flag``): no more simulations
             raise KeyboardInterrupt
+        if self.exhausted:
+            raise BudgetExceeded("the fit used up its budget")
         key = np.asarray(theta, dtype=float).tobytes()
         if key not in self._cache:
-            self.check_time()
+            if self.budget is not None:
+                try:
+                    self.budget.charge(self.stop)
+                except BudgetExceeded:
+                    self.exhausted = True
+                    raise
             if len(self._cache) >= self.CACHE:
                 self._cache.pop(next(iter(self._cache)))
             q_m, q_l, _ = self.simulate(np.asarray(theta, dtype=float))
@@ -216,10 +241,11 @@ class OutputError:
         base problem has none."""
         return []
 
-    def check_time(self) -> None:
-        """Raise ``TimeBudgetExceeded`` once ``deadline`` has passed."""
-        if self.deadline is not None and time.monotonic() > self.deadline:
-            raise TimeBudgetExceeded("the fit ran out of its time budget")
+    def check_budget(self) -> None:
+        """Raise ``BudgetExceeded`` once the budget refused a simulation (checked when IPOPT returns: inside a
+        callback the refusal only stops the solve, ``_guarded``)."""
+        if self.exhausted:
+            raise BudgetExceeded("the fit used up its budget of simulations")
 
     def close(self) -> None:
         self.plant.close()
@@ -233,18 +259,21 @@ def _guarded(problem: OutputError, fn: Callable[[np.ndarray], np.ndarray], arg: 
     line search accepts the step, the iteration ends, the iteration callback (``_stop_callback``) stops IPOPT, and
     ``fit_ipopt`` raises KeyboardInterrupt (failing evaluations instead kept IPOPT backtracking and restoring for
     1.5 s, printing a traceback each)."""
-    if not problem.interrupted:
+    if not (problem.interrupted or problem.exhausted):
         try:
             return fn(np.array(arg).ravel())
         except KeyboardInterrupt:
             problem.interrupted = True
+        except BudgetExceeded:  # the same clean stop as an interrupt; ``fit_ipopt`` raises it once IPOPT returns
+            pass
         except (PlantError, ParameterError):  # a point the FMU cannot simulate: NaN, and IPOPT steps back
             return np.full(shape, np.nan)
     return np.zeros(shape)
 
 
-def _stop_callback(problem: OutputError, n: int) -> Any:
-    """IPOPT's iteration callback: stop (``User_Requested_Stop``) once ``problem.interrupted``."""
+def _stop_callback(problem: OutputError, n: int, stop: Callable[[], bool] | None = None) -> Any:
+    """IPOPT's iteration callback: stop (``User_Requested_Stop``) once ``problem.interrupted``, its budget refused a
+    simulation, or the caller's ``stop()`` is true (e.g. a budget that cannot pay for another iteration)."""
     import casadi as ca
 
     class Stop(ca.Callback):
@@ -262,7 +291,7 @@ def _stop_callback(problem: OutputError, n: int) -> Any:
             return (ca.Sparsity.dense(1) if name == "f" else ca.Sparsity.dense(n) if name in ("x", "lam_x")
                     else ca.Sparsity(0, 0))
 
-        def eval(self, arg): return [1 if problem.interrupted else 0]
+        def eval(self, arg): return [1 if problem.interrupted or problem.exhausted or (stop and stop()) else 0]
 
     return Stop()
 
@@ -324,8 +353,7 @@ def _residual_callback(problem: OutputError, n: int, m: int) -> Any:
     return Res("fmu_residuals")
 
 
-def _gauss_newton_solver(res: Any, n: int, m: int, max_iter: int, max_cpu_time: float, verbose: bool = False,
-                         stop: Any = None) -> Any:
+def _gauss_newton_solver(res: Any, n: int, m: int, max_iter: int, verbose: bool = False, stop: Any = None) -> Any:
     """IPOPT on 0.5 |r(theta)|^2 / m with the Gauss-Newton Hessian J^T J / m (r: the callback ``res``)."""
     import casadi as ca
 
@@ -357,30 +385,31 @@ def _gauss_newton_solver(res: Any, n: int, m: int, max_iter: int, max_cpu_time: 
                                 "acceptable_compl_inf_tol": 1e19,
                                 "acceptable_iter": 3,
                                 # backtrack fast: a failed step on a kink is not worth 40 halvings
-                                "alpha_red_factor": 0.1, "max_cpu_time": max_cpu_time,
+                                "alpha_red_factor": 0.1,
                                 "sb": "yes"}})
 
 
 def fit_ipopt(problem: OutputError, theta0: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-              max_iter: int = 40, max_cpu_time: float = 1e6) -> tuple[np.ndarray, dict[str, Any]]:
+              max_iter: int = 40, stop: Callable[[], bool] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
     """min 0.5 |r(theta)|^2 / m with IPOPT; r is the FMU through a CasADi callback, Hessian Gauss-Newton.
     IPOPT prints nothing unless ``problem.verbose``; a KeyboardInterrupt inside a callback stops the fit and is
-    raised again here."""
+    raised again here, a spent ``problem.budget`` as BudgetExceeded; ``stop``: checked after every iteration, true
+    ends the fit at that iterate (a caller's own evaluation budget)."""
     n, m = theta0.size, problem.residuals(theta0).size
     res = _residual_callback(problem, n, m)
     verbose = getattr(problem, "verbose", False)
-    stop = _stop_callback(problem, n)
-    solver = _gauss_newton_solver(res, n, m, max_iter, max_cpu_time, verbose, stop)
+    stopper = _stop_callback(problem, n, stop)
+    solver = _gauss_newton_solver(res, n, m, max_iter, verbose, stopper)
     try:
         with c_stdout(to_stderr=verbose), _sigint_flag(problem):
             sol = solver(x0=theta0, lbx=lower, ubx=upper)
-    except RuntimeError:  # CasADi wraps an exception raised in a callback: say so if it was Ctrl-C or the deadline
+    except RuntimeError:  # CasADi wraps an exception raised in a callback: say so if it was Ctrl-C or the budget
         _reraise_interrupt(problem)
-        problem.check_time()
+        problem.check_budget()
         raise
     _reraise_interrupt(problem)
-    # IPOPT may also take the refused evaluations for failed ones and stop early: that is not an optimum either
-    problem.check_time()
+    # a solve stopped by a refused simulation is not an optimum either
+    problem.check_budget()
     stats = solver.stats()
     return np.array(sol["x"]).ravel(), {"status": stats["return_status"], "iterations": stats["iter_count"],
                                         "cost": float(sol["f"])}

@@ -25,8 +25,10 @@ law: ``T = M q'' + F(q') + offset``; with both asymmetries it is the EMPS paper'
 The effect ``asymmetric_friction`` has two unknowns: the Coulomb asymmetry ``friction_asymmetry`` and the viscous
 asymmetry ``viscous_asymmetry`` (which only acts where there is viscous friction).
 
-Each :class:`Effect` knows its FMU parameters, how the fit sees them (scaled, bounded unknowns), its *magnitude*
-(the number a report quotes, with its unit) and the residual signature it leaves (used to explain the choice).
+Each :class:`Effect` knows its FMU parameters (with their physical bounds), its *magnitude* (the number a report
+quotes, with its unit) and the residual signature it leaves (used to explain the choice). How a fit scales and
+starts them is the diagnosis's business (``ident.diagnosis.models.coordinates``): it derives both from the drive's
+data sheet and the log, never from fixed values.
 """
 from __future__ import annotations
 
@@ -124,19 +126,17 @@ EFFECT_DEFAULTS: dict[str, float] = {
 
 @dataclass(frozen=True)
 class FitVar:
-    """One unknown of a refit: ``value = scale * x`` (``log``: ``value = scale * exp(x)``), x within [lo, hi]."""
+    """One FMU parameter of an effect and its physical range [lo, hi]."""
 
     param: str          # FMU parameter it sets
     lo: float
     hi: float
-    log: bool = False
 
 
 @dataclass(frozen=True)
 class Effect:
     """One effect of the library.
 
-    ``scales(base)`` gives the typical size of each unknown for a drive (so that x ~ 1 is a realistic magnitude);
     ``magnitude(values)`` turns fitted FMU parameter values into the number the report quotes (``unit``).
     ``signature`` says in words what the effect leaves in the residuals; ``applies_to`` the base models it extends.
     """
@@ -146,60 +146,37 @@ class Effect:
     unit: str
     signature: str
     applies_to: tuple[str, ...]
-    scales: Callable[[Any], tuple[float, ...]]
     magnitude: Callable[[dict[str, float]], float]
     magnitude_param: str | None  # FMU parameter whose interval is the magnitude's (None: derived)
-    starts: tuple[tuple[float, ...], ...]  # starting points (in x) tried by a refit
 
 
-def _band_deflection(p: Any) -> float:
-    """The spring deflection carried by the motor's breakaway torque: f_m / (r K_s) [rad]."""
-    return p.f_m / (p.r * p.K_s)
-
-
+# FitVar ranges: the FMU's (fmu_build/variables.py), except where a physical limit is tighter
 EFFECTS: dict[str, Effect] = {e.name: e for e in (
-    Effect("viscous_motor", (FitVar("b_m", 0.0, 1e3),), "N.m.s/rad",
+    Effect("viscous_motor", (FitVar("b_m", 0.0, 1e6),), "N.m.s/rad",
            "residual grows with motor speed: long slides end too far (or too short) by an amount that scales "
-           "with the slide's speed", ("two-inertia", "rigid"),
-           lambda p: (0.05 * p.f_m / math.sqrt(p.f_m / p.J_m),),
-           lambda v: v["b_m"], "b_m", ((0.1,), (1.0,), (10.0,))),
-    Effect("viscous_load", (FitVar("b_l", 0.0, 1e3),), "N.m.s/rad",
+           "with the slide's speed", ("two-inertia", "rigid"), lambda v: v["b_m"], "b_m"),
+    Effect("viscous_load", (FitVar("b_l", 0.0, 1e6),), "N.m.s/rad",
            "load ringing decays exponentially (constant ratio of successive peaks) instead of linearly (Coulomb)",
-           ("two-inertia",), lambda p: (0.1 * math.sqrt(p.K_s * p.J_l),),
-           lambda v: v["b_l"], "b_l", ((0.1,), (1.0,), (10.0,))),
-    # the Stribeck velocity's scale is the load speed of the motor turning at 1 rad/s, from the drive's data
-    # sheet (r), not from a fitted K*, J_l*, f_l*: a base model that lacks the effect bends those by orders of
-    # magnitude; the range is 1e-6 .. 1 rad/s at the load and the starts are its decades. The ratio's starts are
-    # dense (x1.26 from 0.1 to 4): the static level f (1 + s) decides which pulses break the motor away, so the
-    # cost is a staircase in s whose right step is narrow (measured on a hidden s = 0.5 log: a good first-window
-    # cost only for s in [0.49, 0.9]; starts at 0.3 and 1.0 both missed it)
-    Effect("stribeck", (FitVar("stribeck_ratio", 0.0, 10.0), FitVar("stribeck_velocity", -9.3, 4.7, log=True)),
+           ("two-inertia",), lambda v: v["b_l"], "b_l"),
+    Effect("stribeck", (FitVar("stribeck_ratio", 0.0, 10.0), FitVar("stribeck_velocity", 1e-12, 1e6)),
            "1", "breakaway needs more torque than sliding: overshoot after breakaway, a dip of friction at low speed",
-           ("two-inertia", "rigid"), lambda p: (1.0, p.r * 1.0),
-           lambda v: v["stribeck_ratio"], "stribeck_ratio",
-           tuple((round(0.1 * 1.26 ** i, 4), math.log(v)) for i in range(17) for v in (1e-3, 1e-2, 1e-1, 1.0))),
+           ("two-inertia", "rigid"), lambda v: v["stribeck_ratio"], "stribeck_ratio"),
     Effect("asymmetric_friction", (FitVar("friction_asymmetry", -0.99, 0.99), FitVar("viscous_asymmetry", -0.99, 0.99)),
            "1", "the residual's sign follows the direction of motion: positive and negative moves end at different "
-           "distances", ("two-inertia", "rigid"), lambda p: (1.0, 1.0),
-           lambda v: abs(v["friction_asymmetry"]), "friction_asymmetry", ((0.1, 0.0), (-0.1, 0.0))),
-    Effect("hardening", (FitVar("hardening", 0.0, 1e3),), "1/rad2",
+           "distances", ("two-inertia", "rigid"), lambda v: abs(v["friction_asymmetry"]), "friction_asymmetry"),
+    Effect("hardening", (FitVar("hardening", 0.0, 1e20),), "1/rad2",
            "ringing frequency rises with amplitude: phase error grows in large swings and vanishes in small ones",
-           ("two-inertia",), lambda p: (1.0 / _band_deflection(p) ** 2,),
-           lambda v: v["hardening"], "hardening", ((0.01,), (0.1,), (1.0,))),
-    Effect("hysteresis", (FitVar("hysteresis_torque", 0.05, 1e3), FitVar("hysteresis_stiffness", -2.3, 2.3, log=True)),
+           ("two-inertia",), lambda v: v["hardening"], "hardening"),
+    Effect("hysteresis", (FitVar("hysteresis_torque", 0.0, 1e6), FitVar("hysteresis_stiffness", 1e-3, 1e15)),
            "N.m", "a loop in spring torque vs twist: direction-dependent offset and amplitude-dependent damping of "
-           "the ringing", ("two-inertia",), lambda p: (max(p.f_l, 1e-3 * p.f_m), p.K_s),
-           lambda v: v["hysteresis_torque"], "hysteresis_torque",
-           ((0.3, 0.0), (1.0, 0.0), (1.0, -1.5), (3.0, -1.5))),
-    Effect("kinematic_error", (FitVar("kinematic_error", 0.0, 1e4), FitVar("kinematic_error_phase", -10.0, 10.0)),
+           "the ringing", ("two-inertia",), lambda v: v["hysteresis_torque"], "hysteresis_torque"),
+    Effect("kinematic_error", (FitVar("kinematic_error", 0.0, 1.0), FitVar("kinematic_error_phase", -10.0, 10.0)),
            "rad", "load angle error periodic in motor angle, twice per wave-generator turn",
-           ("two-inertia",), lambda p: (p.r * p.count_rad, 1.0),
-           lambda v: v["kinematic_error"], "kinematic_error",
-           tuple((1.0, ph) for ph in (0.0, 1.5708, 3.1416, 4.7124))),
+           ("two-inertia",), lambda v: v["kinematic_error"], "kinematic_error"),
     Effect("flexibility", (), "N.m/rad", "a resonance the rigid model cannot produce: the load rings on its own "
-           "after every move while the motor stands still", ("rigid",), lambda p: (), lambda v: v.get("K_s", math.nan),
-           "K_s", ()),
+           "after every move while the motor stands still", ("rigid",), lambda v: v.get("K_s", math.nan), "K_s"),
 )}
+
 
 def active_effects(values: dict[str, float]) -> list[str]:
     """Names of the effects switched on by a set of FMU parameter values."""

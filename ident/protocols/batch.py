@@ -20,6 +20,7 @@ import os
 import shutil
 import sys
 import tempfile
+import threading
 from contextlib import contextmanager
 from typing import Any, Callable, Iterator, Sequence, TypeVar
 
@@ -213,3 +214,93 @@ def _gather(client: Any, fn: Callable[[T], R], items: list[T], progress: bool, d
                 results[index[future.key]] = future.result()  # re-raises a worker's exception here
                 bar.update()
     return results
+
+
+class WorkerPool:
+    """One set of workers for several batches (a diagnosis runs a few per step, and starting a local cluster costs
+    seconds): a local cluster of ``workers`` processes (one thread each, their scratch space in one folder removed
+    with them), an existing cluster (``scheduler``), or none (``workers=0``: every batch runs serially in this
+    process). Results come back in the order of the inputs. The local workers start in the background (the caller's
+    first work, e.g. a base fit, overlaps their start-up); the first batch waits for them. Ctrl-C cancels the
+    running tasks and kills the local workers (``_shut_down``), then re-raises ``KeyboardInterrupt``."""
+
+    def __init__(self, workers: int | None = None, scheduler: str | None = None):
+        check_workers(workers)
+        self.workers = default_workers() if workers is None and scheduler is None else workers
+        self.scheduler = scheduler
+        self.cluster: Any = None
+        self.client: Any = None
+        self._scratch: str | None = None
+        self._starting: threading.Thread | None = None
+        self._error: BaseException | None = None
+
+    @property
+    def serial(self) -> bool:
+        return self.workers == 0 and self.scheduler is None
+
+    def __enter__(self) -> WorkerPool:
+        if self.scheduler is not None:
+            self.client = connect(self.scheduler)
+        elif not self.serial:
+            self._scratch = tempfile.mkdtemp(prefix="hdrive-workers-")
+            self._starting = threading.Thread(target=self._start, name="hdrive-workers", daemon=True)
+            self._starting.start()
+        return self
+
+    def _start(self) -> None:
+        try:
+            import logging
+
+            import dask
+            from dask.distributed import Client, LocalCluster
+
+            with dask.config.set({"temporary-directory": self._scratch}):
+                self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
+                                            dashboard_address=":0", local_directory=self._scratch,
+                                            env={"TMPDIR": self._scratch}, silence_logs=logging.ERROR)
+                self.client = Client(self.cluster)
+        except BaseException as exc:  # noqa: BLE001 - re-raised in the caller's thread by _ready
+            self._error = exc
+
+    def _ready(self) -> None:
+        """Wait for the local workers (in short slices, so that Ctrl-C is seen at once)."""
+        while self._starting is not None and self._starting.is_alive():
+            self._starting.join(0.1)
+        if self._error is not None:
+            raise BatchError(f"the local Dask workers did not start: {self._error}") from self._error
+
+    def __exit__(self, kind: object, exc: object, tb: object) -> None:
+        self.close(interrupted=kind is not None)
+
+    def share(self, value: Any) -> Any:
+        """``value`` sent to the workers once (a log of megabytes used by every task); pass the result to ``map``
+        in place of the value."""
+        if self.serial:
+            return value
+        self._ready()
+        return self.client.scatter(value, broadcast=True)
+
+    def map(self, fn: Callable[[T], R], items: Sequence[T], *, progress: bool = False, desc: str = "runs") -> list[R]:
+        """``[fn(x) for x in items]`` on the pool's workers."""
+        items = list(items)
+        if not items:
+            return []
+        if self.serial:
+            return [fn(x) for x in tqdm(items, desc=desc, disable=not progress)]
+        self._ready()
+        return _gather(self.client, fn, items, progress, desc, self.scheduler or "the local cluster")
+
+    def close(self, interrupted: bool = False) -> None:
+        """Stop the pool; ``interrupted``: kill the local workers rather than wait for their tasks."""
+        if self._starting is not None and self._starting.is_alive():
+            if interrupted:  # interrupted while they start: their processes are daemons, gone when this one exits
+                return
+            self._starting.join()
+        if self.scheduler is not None:
+            if self.client is not None:
+                self.client.close()
+        else:
+            _shut_down(self.client, self.cluster, interrupted)
+        if self._scratch is not None:
+            shutil.rmtree(self._scratch, ignore_errors=True)
+        self.client = self.cluster = None

@@ -1,0 +1,161 @@
+"""The models a diagnosis can start from, as plug-ins of the one discrepancy loop (``ident.diagnosis.engine``).
+
+A plug-in knows its model: how to fit it, simulate it, score its residuals, test and refit each candidate effect,
+name an effect's magnitude, localise what is left, and export the result. The loop knows none of that: it screens,
+refits the few candidates that pass, applies one acceptance rule to every effect, iterates, eliminates backwards and
+writes the report. ``Fitted`` is the loop's view of a fitted model; ``ModelPlugin`` the contract.
+
+- ``two_inertia.TwoInertiaPlugin``: torque, motor encoder and load sensor; the FMU is the model (output error), and
+  the rigid kinematics q_l = r q_m can be its start (then ``flexibility`` is the first candidate).
+- ``rigid.RigidPlugin``: a motor-only log (rotary or a linear axis, e.g. EMPS); the rigid inverse-dynamics model by
+  equation error (IDIM-LS).
+"""
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ..result import DiagnosisStep
+from ..screening import ScoreTest
+
+
+@dataclass
+class Fitted:
+    """A fitted model of the sequence, as the loop sees it.
+
+    ``train_cost`` / ``held_cost``: sum of squared residuals on the training / held-back data (noise-normalised
+    where the plug-in knows the noise); ``held_losses``: the held-back squared error per sample (the
+    Diebold-Mariano test compares two models sample by sample); ``n_train``: training residuals; ``k``: unknowns;
+    ``state``: the plug-in's own (parameters, simulation)."""
+
+    effects: tuple[str, ...]
+    train_cost: float
+    held_cost: float
+    held_losses: np.ndarray
+    n_train: int
+    k: int
+    metrics: dict[str, float] = field(default_factory=dict)
+    state: Any = None
+
+    def bic(self) -> float:
+        return self.n_train * math.log(max(self.train_cost, 1e-300) / self.n_train) + self.k * math.log(self.n_train)
+
+
+@dataclass
+class CandidateFit:
+    """One candidate refitted (on a worker): the model with it, or why there is none.
+
+    ``exhausted``: the fit used up its evaluation budget (the candidate is then not ruled out); ``veto``: a reason
+    of the model's own not to name it even if it scores (e.g. a parameter at its bound); ``evaluations``: the
+    simulations used, in whole training logs; ``start``: where the fit started."""
+
+    name: str
+    model: Fitted | None = None
+    error: str | None = None
+    exhausted: bool = False
+    veto: str | None = None
+    evaluations: float = 0.0
+    start: str = ""
+
+
+@dataclass
+class Magnitude:
+    """An effect's magnitude in a model: value, 95 % interval, unit and the FMU/model parameters of the effect."""
+
+    value: float
+    ci95: tuple[float, float]
+    unit: str
+    params: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def excludes_zero(self) -> bool:
+        lo, hi = self.ci95
+        return bool(np.isfinite(lo) and np.isfinite(hi) and (lo > 0 or hi < 0))
+
+
+class ModelPlugin(ABC):
+    """The contract between the discrepancy loop and a model (see the module docstring). Instances travel to the
+    workers (candidate refits), so they hold data and settings only, never an open FMU."""
+
+    kind: str = ""
+    #: the relative gain of the held-back cost below which an improvement is not worth naming (model-specific:
+    #: how well the model's noise level is known)
+    min_gain: float = 1.02
+
+    @abstractmethod
+    def fit_base(self) -> Fitted:
+        """The base model on the training data."""
+
+    @abstractmethod
+    def candidates(self, model: Fitted) -> tuple[str, ...]:
+        """Effects that can extend ``model``, in library order."""
+
+    @abstractmethod
+    def screen(self, model: Fitted, names: tuple[str, ...]) -> list[ScoreTest]:
+        """The score test of each candidate at ``model`` (``ident.diagnosis.screening``)."""
+
+    @abstractmethod
+    def refit(self, model: Fitted, test: ScoreTest, budget: float | None) -> CandidateFit:
+        """``model`` with the candidate of ``test`` added, fitted from the screen's step; ``budget``: simulations
+        allowed, in whole training logs (None: unlimited)."""
+
+    @abstractmethod
+    def without(self, model: Fitted, name: str, budget: float | None) -> Fitted:
+        """``model`` without effect ``name``, refitted from ``model``'s optimum (the drop test, the backward
+        elimination)."""
+
+    def converge(self, model: Fitted, budget: float | None) -> tuple[Fitted, str]:
+        """The accepted model, converged further if the plug-in can (e.g. identified from scratch with the new
+        effect); returns it and a sentence on what was done. Default: as it is."""
+        return model, ""
+
+    @abstractmethod
+    def resimulated(self, model: Fitted) -> Fitted:
+        """``model`` with whatever its report needs recomputed (a refit on a worker returns it lean)."""
+
+    @abstractmethod
+    def magnitude(self, model: Fitted, name: str) -> Magnitude:
+        """Effect ``name``'s magnitude in ``model``, with its interval."""
+
+    @abstractmethod
+    def over_noise(self, model: Fitted) -> tuple[float, float] | None:
+        """(training, held-back) residual RMS over the sensor noise, or None where the noise is not known."""
+
+    @abstractmethod
+    def regimes(self, model: Fitted) -> pd.DataFrame:
+        """Where ``model``'s residual lives: a ranked table of regimes."""
+
+    @abstractmethod
+    def unexplained(self, model: Fitted, table: pd.DataFrame) -> list[dict[str, Any]]:
+        """Regimes with structure left that no named effect explains: {"regime", "share_pct", "detail"}."""
+
+    @abstractmethod
+    def step(self, model: Fitted, added: str | None, score: float | None, extra: dict[str, Any]) -> DiagnosisStep:
+        """The report's record of one model of the sequence."""
+
+    def derivations(self) -> list[str]:
+        """Sentences saying how the screen's grids and the fits' scales were derived from the data sheet and the
+        log (printed in the report)."""
+        return []
+
+    def notes(self) -> list[str]:
+        """Notes of the plug-in's own for the report (e.g. how the held-back data were chosen)."""
+        return []
+
+    @abstractmethod
+    def export(self, model: Fitted, folder: Path) -> tuple[Path | None, str]:
+        """The fitted model as an FMU in ``folder``: (path, what it is) or (None, why it cannot be)."""
+
+    @abstractmethod
+    def plots(self, models: list[Fitted], folder: Path) -> dict[str, str]:
+        """The report's plots written into ``folder``: {key: file name}."""
+
+    def report_sections(self, models: list[Fitted]) -> list[str]:
+        """Extra markdown sections of the model's own (e.g. a published reference beside the numbers)."""
+        return []

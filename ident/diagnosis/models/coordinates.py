@@ -1,0 +1,166 @@
+"""The unknowns of library effects in a two-inertia fit, scaled by what the log shows.
+
+Every effect's unknowns are *coordinates* x with ``value = scale * x`` (``scale * exp(x)`` for a log coordinate),
+chosen so that x = 0 is the effect switched off wherever that is possible (the screen tests x = 0, and the fit can
+reach it smoothly), and x ~ 1 is an effect of the size the log would show plainly. The scales come from the
+drive's data sheet (J_m, f_m, r from the sidecar) and from the log through the base fit (``LogScales``), never
+from a test log's values:
+
+==================== ====================================== ===============================================
+effect               coordinates                            scale
+==================== ====================================== ===============================================
+viscous_motor        b_m                                    f_m / v_m (viscous torque = f_m at typical speed)
+viscous_load         b_l                                    f_l / v_l (base fit's f_l, typical load speed)
+stribeck             ratio s; ln v_s                        1; v_l
+asymmetric_friction  a                                      1
+hardening            hardening                              1 / d95^2 (d95: the deflections the log shows)
+hysteresis           H; ln(delta), delta = H / sigma        K_s d95 (the spring torque seen); d95
+kinematic_error      c = A cos(phi), s = A sin(phi)         d95
+==================== ====================================== ===============================================
+
+v_m, v_l: median speed of the motor / load while it slips; d95: 95th percentile of |deflection|; both from the
+base model's simulation of the training part (the model reproduces the log closely; the raw deflection r q_m - q_l
+is quantised by the encoder far above the deflections that matter). The hysteresis is written with its saturation
+deflection delta = H / sigma (where the Dahl element stops stiffening), because at small H the element's torque is
+H times a function of the motion and delta: linear in H, so the screen can test H = 0 on a grid of delta. The
+kinematic error A sin(2 q_m + phi) = c sin(2 q_m) + s cos(2 q_m) is linear in (c, s) at 0.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...model.params import DriveParams
+
+#: effects of the two-inertia model, in the library's order
+TWO_INERTIA_EFFECTS = ("viscous_motor", "viscous_load", "stribeck", "asymmetric_friction", "hardening", "hysteresis",
+                       "kinematic_error")
+
+
+@dataclass(frozen=True)
+class LogScales:
+    """What the log shows, through the base fit: typical slip speeds [rad/s], deflection scale [rad], and the
+    percentiles of the load's slip speed (the Stribeck grid)."""
+
+    v_m: float
+    v_l: float
+    d95: float
+    v_l_percentiles: tuple[float, ...]     # 5, 25, 50, 75, 95 % of |v_l| while the load slips
+    K_s: float
+    f_l: float
+    f_m: float
+
+    @classmethod
+    def from_simulation(cls, sim: dict[str, np.ndarray], stop: int, base: DriveParams) -> "LogScales":
+        v_m, v_l = np.abs(sim["v_m"][:stop]), np.abs(sim["v_l"][:stop])
+        slip_m, slip_l = v_m[v_m > 0], v_l[v_l > 0]
+        # a log where a body never slips gives the data sheet's own speed scale sqrt(f_m / J_m) (rad/s)
+        v0 = math.sqrt(base.f_m / base.J_m)
+        vm = float(np.median(slip_m)) if slip_m.size else v0
+        vl = float(np.median(slip_l)) if slip_l.size else base.r * v0
+        pct = tuple(float(x) for x in np.percentile(slip_l, [5, 25, 50, 75, 95])) if slip_l.size else (vl,) * 5
+        d = sim["spring_torque"][:stop] / base.K_s
+        d95 = float(np.percentile(np.abs(d), 95)) or base.f_m / (base.r * base.K_s)
+        return cls(vm, vl, d95, pct, base.K_s, base.f_l, base.f_m)
+
+    def describe(self) -> list[str]:
+        pct = ", ".join(f"{v:.3g}" for v in self.v_l_percentiles)
+        return [f"typical slip speeds (medians while slipping, base model on the training part): motor {self.v_m:.4g} "
+                f"rad/s, load {self.v_l:.4g} rad/s; load slip speed percentiles 5/25/50/75/95 %: {pct} rad/s",
+                f"deflection scale d95 (95th percentile of |deflection| of the base model): {self.d95:.4g} rad; "
+                f"spring torque scale K_s d95 = {self.K_s * self.d95:.4g} N.m"]
+
+
+@dataclass(frozen=True)
+class Coord:
+    """One unknown of an effect: ``value = scale * x`` (``log``: ``scale * exp(x)``), x in [lo, hi];
+    ``from_zero``: x = 0 is the effect off and x may only grow from there (a one-sided score test)."""
+
+    effect: str
+    name: str
+    lo: float
+    hi: float
+    scale: float
+    log: bool = False
+    from_zero: bool = False
+
+    def value(self, x: float) -> float:
+        return self.scale * math.exp(x) if self.log else self.scale * x
+
+    def x_of(self, value: float) -> float:
+        return math.log(max(value, 1e-300) / self.scale) if self.log else value / self.scale
+
+    def rescaled(self, scale: float) -> "Coord":
+        """The same unknown with ``value = scale * x`` (a linear coordinate; its bounds keep their values)."""
+        if self.log or scale <= 0:
+            return self
+        f = self.scale / scale
+        return Coord(self.effect, self.name, self.lo * f, self.hi * f, scale, self.log, self.from_zero)
+
+
+def coordinates(name: str, s: LogScales, sensitivity: dict[str, float] | None = None) -> tuple[Coord, ...]:
+    """The unknowns of effect ``name`` (see the module docstring for the scales). ``sensitivity``: for a linear
+    coordinate, the value that moves the load by one noise sigma (RMS) at the model where the effect was screened;
+    it then becomes the coordinate's scale, so that the fit sees x ~ 1 as a just-visible effect (IPOPT pushes a
+    start off its bounds by 0.01 in x and scales its problem by the gradients: both need x of order 1)."""
+    coords = _coordinates(name, s)
+    if not sensitivity:
+        return coords
+    return tuple(c.rescaled(sensitivity[c.name]) if c.name in sensitivity else c for c in coords)
+
+
+def _coordinates(name: str, s: LogScales) -> tuple[Coord, ...]:
+    d_cap = 1.0 / s.d95  # the FMU takes a kinematic error up to 1 rad
+    table = {
+        "viscous_motor": (Coord(name, "b_m", 0.0, 1e4, s.f_m / s.v_m, from_zero=True),),
+        "viscous_load": (Coord(name, "b_l", 0.0, 1e4, max(s.f_l, 1e-3 * s.f_m) / s.v_l, from_zero=True),),
+        "stribeck": (Coord(name, "stribeck_ratio", 0.0, 10.0, 1.0, from_zero=True),
+                     Coord(name, "ln_stribeck_velocity", math.log(1e-4), math.log(1e3), s.v_l, log=True)),
+        "asymmetric_friction": (Coord(name, "friction_asymmetry", -0.99, 0.99, 1.0),),
+        "hardening": (Coord(name, "hardening", 0.0, 1e4, 1.0 / s.d95**2, from_zero=True),),
+        "hysteresis": (Coord(name, "hysteresis_torque", 0.0, 1e3, s.K_s * s.d95, from_zero=True),
+                       Coord(name, "ln_saturation_deflection", math.log(1e-3), math.log(1e2), s.d95, log=True)),
+        "kinematic_error": (Coord(name, "kinematic_c", -min(1e3, d_cap), min(1e3, d_cap), s.d95),
+                            Coord(name, "kinematic_s", -min(1e3, d_cap), min(1e3, d_cap), s.d95)),
+    }
+    return table[name]
+
+
+def fmu_values(name: str, coords: tuple[Coord, ...], x: np.ndarray) -> dict[str, float]:
+    """The FMU parameters of effect ``name`` at coordinates ``x``."""
+    v = {c.name: c.value(float(xi)) for c, xi in zip(coords, x)}
+    if name == "stribeck":
+        return {"stribeck_ratio": v["stribeck_ratio"], "stribeck_velocity": v["ln_stribeck_velocity"]}
+    if name == "hysteresis":
+        H = v["hysteresis_torque"]
+        # H = 0 is the element off; its stiffness is then irrelevant (any value in the FMU's range)
+        return {"hysteresis_torque": H,
+                "hysteresis_stiffness": H / v["ln_saturation_deflection"] if H > 0 else 1.0}
+    if name == "kinematic_error":
+        c, s = v["kinematic_c"], v["kinematic_s"]
+        return {"kinematic_error": math.hypot(c, s), "kinematic_error_phase": math.atan2(s, c)}
+    return v
+
+
+def grid(name: str, s: LogScales) -> list[dict[str, float]]:
+    """The screen's grid of effect ``name``'s nonlinear coordinates (empty dict: the effect has none).
+
+    Stribeck velocity: 8 geometric steps from a tenth of the load's 5 % slip speed (the decay finished below every
+    speed seen: a static level above the sliding one) to its 95 % slip speed. Hysteresis saturation deflection:
+    0.03, 0.1, 0.3 and 1 x d95, from an element that saturates at once to one that never does."""
+    if name == "stribeck":
+        lo, hi = 0.1 * s.v_l_percentiles[0], max(s.v_l_percentiles[-1], 0.1 * s.v_l_percentiles[0] * 1.01)
+        return [{"ln_stribeck_velocity": math.log(v / s.v_l)} for v in np.geomspace(lo, hi, 8)]
+    if name == "hysteresis":
+        return [{"ln_saturation_deflection": math.log(f)} for f in (0.03, 0.1, 0.3, 1.0)]
+    return [{}]
+
+
+def magnitude_of(name: str, values: dict[str, float]) -> float:
+    """The number a report quotes for effect ``name`` (the library's magnitude) from its FMU parameters."""
+    key = {"viscous_motor": "b_m", "viscous_load": "b_l", "stribeck": "stribeck_ratio",
+           "asymmetric_friction": "friction_asymmetry", "hardening": "hardening", "hysteresis": "hysteresis_torque",
+           "kinematic_error": "kinematic_error"}[name]
+    return abs(values[key]) if name == "asymmetric_friction" else values[key]

@@ -1,0 +1,178 @@
+"""Output-error residuals of the two-inertia FMU with library effects switched on (the diagnosis's fits).
+
+Unknowns: ``[ln K*, ln J_l*, ln f_l*, d0/band]`` (as ``ident.fitting.identify``) followed by each effect's
+coordinates (``coordinates.coordinates``); ``fixed`` FMU parameters are held (the screen's columns).
+"""
+from __future__ import annotations
+
+import math
+from functools import partial
+from typing import Any
+
+import numpy as np
+
+from ...fitting.identify import EvaluationBudget, OutputError
+from ...fitting.logs import DriveLog
+from ...model.params import DriveParams
+from ...model.plant import Plant
+from .coordinates import Coord, LogScales, coordinates, fmu_values
+
+#: switches the FMU's general (RK4) propagator on without changing the physics: the viscous asymmetry only scales a
+#: viscous coefficient, and there is none. The screen compares a candidate's simulation with the current model's
+#: through the same propagator, so that the difference is the effect's alone.
+SAME_PROPAGATOR = {"viscous_asymmetry": 0.5}
+#: a fit stalls when its best cost has not fallen by more than this (relative) over ``stall_after`` simulations: the
+#: cost of an exact stick-slip model has kinks where a marginal event flips, and IPOPT's line search can spend a
+#: dozen simulations per iteration on one (measured: 13 per iteration, 100 of a refit's 300)
+STALL_TOL = 1e-8
+
+
+
+
+Sensitivity = dict[str, dict[str, float]]   # effect -> coordinate -> scale (see ``coordinates.coordinates``)
+
+
+def blocks(effects: tuple[str, ...], scales: LogScales, sens: Sensitivity | None = None
+           ) -> list[tuple[str, tuple[Coord, ...]]]:
+    """Every effect of the model with its coordinates, in order."""
+    sens = sens or {}
+    return [(name, coordinates(name, scales, sens.get(name))) for name in effects]
+
+
+class ModelProblem(OutputError):
+    """The two-inertia FMU with ``effects`` on, fitted to the first ``stop`` samples of ``log``."""
+
+    def __init__(self, log: DriveLog, base: DriveParams, effects: tuple[str, ...], scales: LogScales | None,
+                 stop: int | None = None, sigma_load: float | None = None, fixed: dict[str, float] | None = None,
+                 budget: EvaluationBudget | None = None, sens: Sensitivity | None = None, central: bool = True):
+        super().__init__(log, base, stop, sigma_load)
+        self.central = central
+        self.effects = effects
+        self.scales = scales
+        self.blocks = blocks(effects, scales, sens) if effects else []
+        self.coords = [c for _, cs in self.blocks for c in cs]
+        self.fixed = dict(fixed or {})
+        self.budget = budget
+        self.best: tuple[float, np.ndarray] | None = None   # the lowest cost simulated and its point
+        self.since_best = 0
+
+    def residuals(self, theta: np.ndarray) -> np.ndarray:
+        """``OutputError.residuals``, keeping the best point simulated and how long ago it was found."""
+        before = self.evaluations
+        r = super().residuals(theta)
+        if self.evaluations > before:  # a new simulation (not a cached one)
+            cost = float(r @ r)
+            if self.best is None or cost < self.best[0] * (1.0 - STALL_TOL):
+                self.best, self.since_best = (cost, np.array(theta, dtype=float)), 0
+            else:
+                self.since_best += 1
+        return r
+
+    def stalled(self, after: int) -> bool:
+        """No simulation has lowered the best cost (by more than ``STALL_TOL``) for ``after`` simulations."""
+        return self.since_best >= after
+
+    def spent(self, reserve: int) -> bool:
+        """The budget cannot pay for ``reserve`` more simulations (an iteration's worth)."""
+        b = self.budget
+        return b is not None and b.limit is not None and b.used + reserve * self.stop > b.limit
+
+    @classmethod
+    def maker(cls, effects: tuple[str, ...], scales: LogScales, budget: EvaluationBudget | None = None,
+              sens: Sensitivity | None = None) -> Any:
+        """A factory ``make(log, base, stop, sigma_l)`` for ``identify.fit_pipeline``."""
+        return partial(_make, effects, scales, budget, sens)
+
+    def values(self, theta: np.ndarray) -> dict[str, float]:
+        """FMU effect parameters at ``theta``."""
+        out = dict(self.fixed)
+        i = 4
+        for name, coords in self.blocks:
+            out.update(fmu_values(name, coords, theta[i:i + len(coords)]))
+            i += len(coords)
+        return out
+
+    def params(self, theta: np.ndarray) -> DriveParams:
+        # IPOPT may probe a hair outside a bound (bound_relax_factor); the FMU would refuse e.g. b_l = -1e-12
+        lo, hi = self.bounds()
+        theta = np.clip(np.asarray(theta, dtype=float), lo, hi)
+        return super().params(theta).with_values(**self.values(theta))
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = super().bounds()
+        return (np.concatenate([lo, [c.lo for c in self.coords]]), np.concatenate([hi, [c.hi for c in self.coords]]))
+
+    def extra_scan(self, theta: np.ndarray) -> list[np.ndarray]:
+        """Steps the continuation's scan tries on the effects' coordinates: each effect's jointly, a product grid
+        of x1/3 .. x3 for log coordinates and +-15 %, +-30 % of the value for the others."""
+        steps = []
+        i = 4
+        for _, coords in self.blocks:
+            idx = list(range(i, i + len(coords)))
+            axes = [(0.0, -1.1, -0.55, 0.55, 1.1) if self.coords[j - 4].log
+                    else tuple(theta[j] * f for f in (0.0, -0.3, -0.15, 0.15, 0.3)) for j in idx]
+            for combo in _product(axes):
+                if any(combo):
+                    step = np.zeros(theta.size)
+                    step[idx] = combo
+                    steps.append(step)
+            i += len(idx)
+        return steps
+
+    def jacobian(self, theta: np.ndarray) -> np.ndarray:
+        """Central differences as ``OutputError`` (3e-8 in the log-parameters, 1e-6 elsewhere); one-sided at a
+        bound, where the FMU would refuse the other side (e.g. a viscous coefficient of exactly 0). ``central``
+        False: forward differences (half the simulations; a candidate's refit, whose optimum only has to rank the
+        candidates, uses them; the reported intervals never do)."""
+        theta = np.asarray(theta, dtype=float)
+        lo, hi = self.bounds()
+        cols = []
+        for i in range(theta.size):
+            h = 3e-8 if i < 3 else 1e-6
+            if self.fd_steps is not None and i < self.fd_steps.size:  # the continuation's search steps
+                h = max(h, float(self.fd_steps[i]))
+            up, down = theta.copy(), theta.copy()
+            up[i] = min(theta[i] + h, hi[i])
+            down[i] = max(theta[i] - h, lo[i]) if self.central or up[i] == theta[i] else theta[i]
+            cols.append((self.residuals(up) - self.residuals(down)) / (up[i] - down[i]))
+        return np.column_stack(cols)
+
+    def load_rows(self) -> slice:
+        """The load sensor's rows of the residual vector."""
+        return slice(0, self.y_l.size)
+
+
+def _product(axes: list[tuple[float, ...]]) -> list[tuple[float, ...]]:
+    out: list[tuple[float, ...]] = [()]
+    for axis in axes:
+        out = [c + (v,) for c in out for v in axis]
+    return out
+
+
+def _make(effects: tuple[str, ...], scales: LogScales, budget: EvaluationBudget | None, sens: Sensitivity | None,
+          log: DriveLog, base: DriveParams, stop: int, sigma_load: float) -> ModelProblem:
+    return ModelProblem(log, base, effects, scales, stop, sigma_load, budget=budget, sens=sens, central=False)
+
+
+def simulate_full(log: DriveLog, problem: ModelProblem, theta: np.ndarray) -> dict[str, np.ndarray]:
+    """The model's simulation of the WHOLE log (training + held back) with the sensor offsets of the training part,
+    plus the states used to localise residuals."""
+    p = problem.params(theta)
+    d0 = float(theta[3]) * p.f_l / p.K_s
+    q_m0 = float(problem.y_m[0])
+    outputs = ("q_m", "q_l", "v_m", "v_l", "spring_torque")
+    with Plant(p) as plant:
+        plant.reset(p, q_m_start=q_m0, q_l_start=p.r * q_m0 - d0, v_m_start=0.0, v_l_start=0.0)
+        traj = plant.trajectory(log.motor_torque_Nm[:-1], log.dt, outputs)
+    s = problem.stop
+    y_m = log.motor_pos_rad + 0.5 * problem.count
+    sim = {k: traj[:, i] for i, k in enumerate(outputs)}
+    sim["q_l"] = sim["q_l"] + float(np.mean(log.load_pos_rad[:s] - sim["q_l"][:s]))
+    sim["q_m"] = sim["q_m"] + float(np.mean(y_m[:s] - sim["q_m"][:s]))
+    sim["res_l"] = log.load_pos_rad - sim["q_l"]
+    sim["res_m"] = y_m - sim["q_m"]
+    return sim
+
+
+def rms(x: np.ndarray) -> float:
+    return float(math.sqrt(float(np.mean(np.square(x))))) if x.size else 0.0

@@ -1,0 +1,498 @@
+"""The two-inertia model as a plug-in of the discrepancy loop: the FMU is the model, fitted by output error.
+
+- **Base**: ``ident.fitting.identify`` on the training part (the first 70 % of the log, or all of it with a second
+  log held back); or, with ``start="rigid"``, the rigid kinematics q_l = r q_m (its only candidate is
+  ``flexibility``, whose fit is the two-inertia identification).
+- **Residuals**: the FMU simulates the whole log (training and held back) with the logged torque; the load sensor
+  and the encoder are compared with it, each weighed by its noise (the load sensor's from the log,
+  ``identify.white_noise_std``; the encoder's quantisation count/sqrt(12)). The acceptance rule compares the
+  models' load-sensor residuals (the encoder's quantisation residual is not white noise: it stays put while the
+  motor stands still).
+- **Screen**: the score test of each candidate (``ident.diagnosis.screening``) on the load-sensor residuals of the
+  training part, the Jacobian columns through the FMU: the current unknowns' by central differences, each
+  candidate's by a one-sided difference at zero through the same propagator (``problem.SAME_PROPAGATOR``), over the
+  grid of its nonlinear coordinate (``coordinates.grid``).
+- **Refit**: from the screen's Gauss-Newton step (the current unknowns and the candidate's), IPOPT on the training
+  part; when the current model leans on a parameter bound (it cannot fit the log inside the physical range, so a
+  refit from it starts in the wrong basin) the candidate's model is identified from scratch
+  (``identify.fit_pipeline``, the screen's step among its first window's starting points). Every fit runs within
+  an evaluation budget (whole training logs simulated).
+- **Converge**: an accepted model still above the noise is identified from scratch with its effects too (the base
+  model's parameters may have bent to mimic the missing effect into a far basin); the better one is kept.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ...fitting.identify import (
+    Z95,
+    BudgetExceeded,
+    EvaluationBudget,
+    at_bound,
+    covariances,
+    fit_ipopt,
+    fit_pipeline,
+    identify,
+)
+from ...fitting.logs import DriveLog, LogError
+from ...model.effects import EFFECTS
+from ...model.params import DriveParams
+from ..result import DiagnosisStep
+from ..screening import ScoreTest, best_of_grid, partial_out, score_test
+from . import two_inertia_report as report
+from . import CandidateFit, Fitted, Magnitude, ModelPlugin
+from .coordinates import TWO_INERTIA_EFFECTS, LogScales, coordinates, fmu_values, grid, magnitude_of
+from .problem import SAME_PROPAGATOR, ModelProblem, Sensitivity, rms, simulate_full
+
+HOLDBACK_FRACTION = 0.3
+#: IPOPT iterations of a drop / backward refit (a candidate's refit runs until its budget is spent)
+REFIT_ITER = 30
+#: the screen's one-sided difference: the candidate's coordinate is set to make the load move by about this many
+#: noise sigmas (RMS over the training part): far above the FMU's round-off (~1e-10 sigma) and the propagators'
+#: differences (~1e-3 sigma), small against the motion (a linear response)
+SCREEN_RESPONSE_SIGMA = 1.0
+FLEXIBILITY = "flexibility"
+
+
+@dataclass
+class TwoInertiaState:
+    """A two-inertia model: its unknowns, the drive they give, the base drive and log scales its coordinates use,
+    and (when kept) the simulation of the whole log; ``rigid``: the rigid kinematics (no unknowns)."""
+
+    theta: np.ndarray
+    params: DriveParams
+    base: DriveParams
+    scales: LogScales | None
+    sim: dict[str, np.ndarray] | None = None
+    cov: np.ndarray | None = None
+    rigid: bool = False
+    sens: Sensitivity = field(default_factory=dict)
+
+    def problem(self, full: DriveLog, effects: tuple[str, ...], stop: int, sigma: float, **kw: Any) -> ModelProblem:
+        """The output-error problem of this model's drive with ``effects`` on."""
+        return ModelProblem(full, self.base, _fmu_effects(effects), self.scales, stop, sigma, sens=self.sens, **kw)
+
+
+class TwoInertiaPlugin(ModelPlugin):
+    """See the module docstring. ``candidates``: library effects to try (default: all of the two-inertia
+    model's)."""
+
+    kind = "two-inertia"
+
+    def __init__(self, log: DriveLog, holdout: DriveLog | None = None, *, start: str = "two-inertia",
+                 candidates: tuple[str, ...] | None = None, resolution_pulses: int = 0):
+        if log.load_pos_rad is None or log.meta.J_m_kgm2 is None or log.meta.f_m_Nm is None \
+                or log.meta.encoder_counts_per_rev is None:
+            raise LogError(f"{log.source}: the two-inertia diagnosis needs load_pos_rad and J_m_kgm2, f_m_Nm, "
+                           "encoder_counts_per_rev in the sidecar; use model='rigid' for a motor-only log")
+        names = TWO_INERTIA_EFFECTS if candidates is None else tuple(candidates)
+        unknown = [c for c in names if c not in TWO_INERTIA_EFFECTS and c != FLEXIBILITY]
+        if unknown:
+            raise ValueError(f"unknown effect(s) {unknown}; the two-inertia library has {', '.join(TWO_INERTIA_EFFECTS)}")
+        self.full, self.stop = split_training(log, holdout)
+        self.start = start
+        self.names = tuple(n for n in names if n != FLEXIBILITY)
+        self.sigma = math.nan   # the load sensor's noise: the identifier's one estimate, set by fit_base
+        self.identified: Any = None
+        self.resolution_pulses = resolution_pulses
+        self.held_source = "the last 30 % of the log" if holdout is None else holdout.source
+
+    # ---------------------------------------------------------------------------------------- models ----------
+
+    def fit_base(self) -> Fitted:
+        """The identifier on the training part (``identify``: its data checks, its fit and its one load-noise
+        estimate, which weighs every model of the diagnosis); with the rigid start, the rigid kinematics (the
+        identification is then flexibility's refit)."""
+        self.identified = identify(truncate_log(self.full, self.stop))
+        self.sigma = self.identified.sigma_load_rad
+        if self.start == "rigid":
+            return self._rigid()
+        return self._identified()
+
+    def _identified(self) -> Fitted:
+        fit = self.identified
+        base = fit.params
+        problem = ModelProblem(self.full, base, (), None, self.stop, self.sigma)  # type: ignore[arg-type]
+        try:
+            sim = simulate_full(self.full, problem, fit.theta)
+        finally:
+            problem.close()
+        scales = LogScales.from_simulation(sim, self.stop, base)
+        return self.evaluate((), fit.theta, base, scales, keep=True)
+
+    def _rigid(self) -> Fitted:
+        """The rigid kinematics q_l = r q_m (encoder reading's mid-count; the load sensor's zero fitted on the
+        training part): no unknowns but the offset."""
+        log, s = self.full, self.stop
+        count = 2 * math.pi / log.meta.encoder_counts_per_rev
+        q_l = log.meta.r * (log.motor_pos_rad + 0.5 * count)
+        q_l = q_l + float(np.mean(log.load_pos_rad[:s] - q_l[:s]))
+        res = (log.load_pos_rad - q_l) / self.sigma
+        base = DriveParams(J_m=log.meta.J_m_kgm2, f_m=log.meta.f_m_Nm, r=log.meta.r,
+                           arm_length=log.meta.arm_length_m, encoder_counts_per_rev=log.meta.encoder_counts_per_rev)
+        held = res[s:] ** 2
+        metrics = _metrics_of(log, res * self.sigma, np.zeros(log.n), s, self.sigma)
+        return Fitted((), float(np.sum(res[:s] ** 2)), float(held.sum()), held, s, 1, metrics,
+                      TwoInertiaState(np.zeros(0), base, base, None, None, rigid=True))
+
+    def evaluate(self, effects: tuple[str, ...], theta: np.ndarray, base: DriveParams, scales: LogScales,
+                 keep: bool = False, sens: Sensitivity | None = None) -> Fitted:
+        """The model ``effects`` at ``theta`` simulated over the whole log; ``keep``: keep the simulation."""
+        problem = ModelProblem(self.full, base, _fmu_effects(effects), scales, self.stop, self.sigma, sens=sens)
+        try:
+            sim = simulate_full(self.full, problem, theta)
+            params = problem.params(theta)
+        finally:
+            problem.close()
+        s = self.stop
+        load = sim["res_l"] / self.sigma
+        metrics = _metrics_of(self.full, sim["res_l"], sim["res_m"], s, self.sigma)
+        held = load[s:] ** 2
+        state = TwoInertiaState(np.asarray(theta, dtype=float), params, base, scales, sim if keep else None,
+                                sens=dict(sens or {}))
+        return Fitted(effects, float(np.sum(load[:s] ** 2)), float(held.sum()), held, s, int(np.size(theta)) + 2,
+                      metrics, state)
+
+    def resimulated(self, model: Fitted) -> Fitted:
+        st = model.state
+        if st.rigid or st.sim is not None:
+            return model
+        out = self.evaluate(model.effects, st.theta, st.base, st.scales, keep=True, sens=st.sens)
+        out.state.cov = st.cov
+        return out
+
+    def candidates(self, model: Fitted) -> tuple[str, ...]:
+        if model.state.rigid:
+            return (FLEXIBILITY,)
+        return tuple(n for n in self.names if n not in model.effects)
+
+    # ---------------------------------------------------------------------------------------- screen ----------
+
+    def screen(self, model: Fitted, names: tuple[str, ...]) -> list[ScoreTest]:
+        if model.state.rigid:
+            return [ScoreTest(FLEXIBILITY, math.nan, math.nan, 1, math.nan, screened=False,
+                              note="the rigid kinematics has no parameter whose zero is the flexibility: fitted "
+                                   "directly")]
+        st = model.state
+        problem = st.problem(self.full, model.effects, self.stop, self.sigma, fixed=dict(SAME_PROPAGATOR))
+        try:
+            rows = problem.load_rows()
+            r = problem.residuals(st.theta)[rows]
+            J = problem.jacobian(st.theta)[rows]
+        finally:
+            problem.close()
+        Q = partial_out(J)
+        return [self._score(model, name, r, J, Q) for name in names]
+
+    def _score(self, model: Fitted, name: str, r: np.ndarray, J: np.ndarray, Q: np.ndarray) -> ScoreTest:
+        """The score test of ``name`` over its grid; the result carries where its refit starts (``start``: the
+        coordinates' values at the Gauss-Newton step) and each linear coordinate's one-sigma size
+        (``sensitivity``)."""
+        coords = coordinates(name, model.state.scales)
+        gridded = {k for point in grid(name, model.state.scales) for k in point}
+        linear = [c for c in coords if c.name not in gridded]
+        points, sizes = [], []
+        for point in grid(name, model.state.scales):
+            entry, size = self._grid_point(model, name, point, coords, linear, r, J, Q)
+            points.append(entry)
+            sizes.append(size)
+        test = best_of_grid(name, points, len(linear), len(linear) == 1 and linear[0].from_zero)
+        best = next(i for i, p in enumerate(points) if p[0] == test.grid_point)
+        test.start = dict(test.grid_point)
+        test.sensitivity = sizes[best]
+        test.grid_point = {k: v for k, v in test.start.items() if k in gridded}
+        test.step = test.step[:J.shape[1]]
+        return test
+
+    def _grid_point(self, model: Fitted, name: str, point: dict[str, float], coords: tuple[Any, ...],
+                    linear: list[Any], r: np.ndarray, J: np.ndarray, Q: np.ndarray
+                    ) -> tuple[tuple[Any, ...], dict[str, float]]:
+        """One grid point's score test: (the coordinates' values at the step, statistic, robust statistic, the
+        whole step, admissible) and the one-sigma size of each linear coordinate."""
+        cols = [self._column(model, name, c.name, point, r) for c in linear]
+        B = np.column_stack(cols)
+        lm, robust, step, ok = score_test(r, Q, B, tuple(c.from_zero for c in linear))
+        base_step = -np.linalg.lstsq(J, r + B @ step, rcond=None)[0]
+        by_name = {c.name: c for c in coords}
+        values = {**{k: by_name[k].value(v) for k, v in point.items()},
+                  **{c.name: c.value(float(x)) for c, x in zip(linear, step)}}
+        sizes = {c.name: c.scale * SCREEN_RESPONSE_SIGMA / max(rms(col), 1e-300) for c, col in zip(linear, cols)}
+        return (values, lm, robust, np.concatenate([base_step, step]), ok), sizes
+
+    def _column(self, model: Fitted, name: str, coord: str, point: dict[str, float], r: np.ndarray) -> np.ndarray:
+        """d(load residual)/dx of coordinate ``coord`` of effect ``name`` at 0 (the other coordinates at
+        ``point``), by a one-sided difference whose size makes the load move by ~SCREEN_RESPONSE_SIGMA."""
+        h = 1e-5
+        for _ in range(3):
+            col = self._difference(model, name, {**point, coord: h}) - r
+            size = rms(col)
+            if size == 0.0 or 0.3 <= size / SCREEN_RESPONSE_SIGMA <= 3.0:
+                break
+            h *= SCREEN_RESPONSE_SIGMA / size
+        return col / h
+
+    def _difference(self, model: Fitted, name: str, x: dict[str, float]) -> np.ndarray:
+        """Load residuals of ``model`` with effect ``name`` held at coordinates ``x`` (through the same
+        propagator as the screen's reference)."""
+        st = model.state
+        coords = coordinates(name, st.scales)
+        values = fmu_values(name, coords, np.array([x.get(c.name, 0.0) for c in coords]))
+        problem = st.problem(self.full, model.effects, self.stop, self.sigma, fixed={**SAME_PROPAGATOR, **values})
+        try:
+            return problem.residuals(st.theta)[problem.load_rows()].copy()
+        finally:
+            problem.close()
+
+    # ---------------------------------------------------------------------------------------- refits ----------
+
+    def refit(self, model: Fitted, test: ScoreTest, budget: float | None) -> CandidateFit:
+        if test.candidate == FLEXIBILITY:
+            return self._flexibility()
+        effects = model.effects + (test.candidate,)
+        st = model.state
+        sens = {**st.sens, test.candidate: dict(test.sensitivity)}
+        meter = EvaluationBudget(None if budget is None else budget * self.stop)
+        leaning = at_bound(st.theta)
+        start = ("identified from scratch (the current model leans on " + ", ".join(leaning) + ")") if leaning \
+            else "the screen's Gauss-Newton step"
+        try:
+            fit = self._from_scratch if leaning else self._from_step
+            theta = fit(model, effects, test, sens, meter)
+        except BudgetExceeded as exc:
+            return CandidateFit(test.candidate, error=str(exc), exhausted=True, evaluations=meter.used / self.stop,
+                                start=start)
+        fitted = self.evaluate(effects, theta, st.base, st.scales, sens=sens)
+        return CandidateFit(test.candidate, fitted, evaluations=meter.used / self.stop, start=start)
+
+    @staticmethod
+    def _start(model: Fitted, test: ScoreTest, sens: Sensitivity) -> np.ndarray:
+        """The candidate's coordinates at the screen's best point, inside their bounds."""
+        coords = coordinates(test.candidate, model.state.scales, sens.get(test.candidate))
+        x = np.array([c.x_of(test.start[c.name]) if c.name in test.start else 0.0 for c in coords])
+        return np.clip(x, [c.lo for c in coords], [c.hi for c in coords])
+
+    def _from_step(self, model: Fitted, effects: tuple[str, ...], test: ScoreTest, sens: Sensitivity,
+                   meter: EvaluationBudget) -> np.ndarray:
+        st = model.state
+        x = self._start(model, test, sens)
+        problem = ModelProblem(self.full, st.base, _fmu_effects(effects), st.scales, self.stop, self.sigma,
+                               budget=meter, sens=sens, central=False)
+        try:
+            lo, hi = problem.bounds()
+            heads = [np.concatenate([st.theta, x]), np.concatenate([st.theta + test.step, x])]
+            head = min((np.clip(h, lo, hi) for h in heads), key=problem.cost)
+            return _ipopt_or_best(problem, head, lo, hi)
+        finally:
+            problem.close()
+
+    def _from_scratch(self, model: Fitted, effects: tuple[str, ...], test: ScoreTest, sens: Sensitivity,
+                      meter: EvaluationBudget) -> np.ndarray:
+        st = model.state
+        x = self._start(model, test, sens)
+        coords = coordinates(test.candidate, st.scales, sens.get(test.candidate))
+        rows = [np.concatenate([st.theta[4:], x])]
+        for point in grid(test.candidate, st.scales):  # the grid's other points as further starts
+            alt = np.array([point.get(c.name, xi) for c, xi in zip(coords, x)])
+            rows.append(np.concatenate([st.theta[4:], alt]))
+        problem, theta, _, _, _ = fit_pipeline(truncate_log(self.full, self.stop), st.base,
+                                               ModelProblem.maker(_fmu_effects(effects), st.scales, meter, sens),
+                                               np.unique(np.array(rows), axis=0))
+        problem.close()
+        return theta
+
+    def _flexibility(self) -> CandidateFit:
+        try:
+            model = self._identified()
+        except Exception as exc:  # noqa: BLE001 - a log the identifier refuses: the candidate is reported, not fatal
+            return CandidateFit(FLEXIBILITY, error=f"{type(exc).__name__}: {exc}", start="identify")
+        model.effects = (FLEXIBILITY,)
+        model.state.sim = None
+        return CandidateFit(FLEXIBILITY, model, start="the two-inertia identification (identify)")
+
+    def without(self, model: Fitted, name: str, budget: float | None) -> Fitted:
+        st = model.state
+        if name == FLEXIBILITY:
+            if model.effects != (FLEXIBILITY,):  # the library effects need the flexible model
+                return replace(model, held_cost=math.inf, train_cost=math.inf)
+            return self._rigid()
+        effects = tuple(e for e in model.effects if e != name)
+        keep = [*range(4), *(4 + i for i, c in enumerate(_layout(model)) if c.effect != name)]
+        problem = st.problem(self.full, effects, self.stop, self.sigma, central=False,
+                             budget=EvaluationBudget(None if budget is None else budget * self.stop))
+        try:
+            theta0 = st.theta[keep]
+            try:
+                theta = _ipopt_or_best(problem, theta0, *problem.bounds(), REFIT_ITER)
+            except BudgetExceeded:
+                theta = problem.best[1] if problem.best is not None else theta0
+        finally:
+            problem.close()
+        return self.evaluate(effects, theta, st.base, st.scales, sens=st.sens)
+
+    def converge(self, model: Fitted, budget: float | None) -> tuple[Fitted, str]:
+        """Identified from scratch with its effects when the accepted model leans on a parameter bound (it was
+        fitted from a model that could not fit the log inside the physical range); else as refitted."""
+        if model.state.rigid or model.effects == (FLEXIBILITY,) or not at_bound(model.state.theta):
+            return self.resimulated(model), ""
+        st = model.state
+        meter = EvaluationBudget(None if budget is None else budget * self.stop)
+        try:
+            problem, theta, _, _, _ = fit_pipeline(truncate_log(self.full, self.stop), st.base,
+                                                   ModelProblem.maker(_fmu_effects(model.effects), st.scales,
+                                                                      meter, st.sens), st.theta[4:][None, :])
+            problem.close()
+        except BudgetExceeded:
+            return self.resimulated(model), (f"identifying {' + '.join(model.effects)} from scratch used up its "
+                                              f"budget ({meter.used / self.stop:.0f} training logs simulated): the "
+                                              "refitted model is kept")
+        fresh = self.evaluate(model.effects, theta, st.base, st.scales, keep=True, sens=st.sens)
+        if fresh.train_cost < model.train_cost:
+            return fresh, (f"identified from scratch with {' + '.join(model.effects)}: training cost "
+                           f"{model.train_cost:.6g} -> {fresh.train_cost:.6g}")
+        return self.resimulated(model), ""
+
+    # ---------------------------------------------------------------------------------------- naming ----------
+
+    def magnitude(self, model: Fitted, name: str) -> Magnitude:
+        st = model.state
+        if name == FLEXIBILITY:
+            cov = self._cov(model)
+            K, sd = st.params.K_s, math.sqrt(max(cov[0, 0], 0.0))
+            return Magnitude(K, (K * math.exp(-Z95 * sd), K * math.exp(Z95 * sd)), "N.m/rad", {"K_s": K})
+        cov = self._cov(model)
+        idx = [4 + i for i, c in enumerate(_layout(model)) if c.effect == name]
+        coords = [c for c in _layout(model) if c.effect == name]
+        x = st.theta[idx]
+        values = {v.param: float(getattr(st.params, v.param)) for v in EFFECTS[name].fit_vars}
+        mag = magnitude_of(name, values)
+        grad = _magnitude_gradient(name, coords, x)
+        sd = math.sqrt(max(float(grad @ cov[np.ix_(idx, idx)] @ grad), 0.0))
+        lo, hi = mag - Z95 * sd, mag + Z95 * sd
+        if name == "asymmetric_friction" and lo < 0 < hi:
+            lo = 0.0
+        return Magnitude(mag, (lo, hi), EFFECTS[name].unit, values)
+
+    def _cov(self, model: Fitted) -> np.ndarray:
+        """The larger (per parameter) of the sandwich and noise-only covariances of the unknowns, as
+        ``identify`` reports (computed once per model)."""
+        st = model.state
+        if st.cov is None:
+            problem = st.problem(self.full, model.effects, self.stop, self.sigma)
+            try:
+                block = max(10, int(self.full.meta.sample_rate_hz / 50))
+                noise, sand, _ = covariances(problem, st.theta, block)
+            finally:
+                problem.close()
+            st.cov = np.where(np.diag(sand)[:, None] >= np.diag(noise)[:, None], sand, noise)
+        return st.cov
+
+    def over_noise(self, model: Fitted) -> tuple[float, float]:
+        m = model.metrics
+        return m["train_over_noise_load"], m["heldback_over_noise_load"]
+
+    def regimes(self, model: Fitted) -> pd.DataFrame:
+        sim = self.resimulated(model).state.sim
+        return report.residual_regimes(self.full, sim, self.sigma, self.full.meta.f_m_Nm)
+
+    def unexplained(self, model: Fitted, table: pd.DataFrame) -> list[dict[str, Any]]:
+        return report.unexplained(table, max(self.over_noise(model)))
+
+    def step(self, model: Fitted, added: str | None, score: float | None, extra: dict[str, Any]) -> DiagnosisStep:
+        return report.step(model, added, score, extra, self.resolution_pulses)
+
+    def derivations(self) -> list[str]:
+        return report.derivations()
+
+    def notes(self) -> list[str]:
+        return [f"held-back data: {self.held_source} (t >= {self.full.time_s[self.stop]:.3f} s), only ever "
+                f"predicted; load sensor noise {self.sigma:.4g} rad (the identifier's estimate: the white part of "
+                "the base fit's residual on the training part)"]
+
+    def export(self, model: Fitted, folder: Path) -> tuple[Path | None, str]:
+        from ...model.export import export_fitted_fmu
+
+        path = export_fitted_fmu(model.state.params, folder / "HarmonicDrive_fitted.fmu")
+        return path, "the HarmonicDrive FMU with the final model's parameters as start values"
+
+    def plots(self, models: list[Fitted], folder: Path) -> dict[str, str]:
+        sims = [self.resimulated(m) for m in (models[0], models[-1])]
+        return report.plots(self.full, self.stop, sims, folder)
+
+
+# ------------------------------------------------------------------------------------------- helpers -----------
+
+def _ipopt_or_best(problem: ModelProblem, head: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                   max_iter: int = 500) -> np.ndarray:
+    """IPOPT from ``head``, checked between iterations: a fit that stalls (three iterations' simulations without
+    progress, ``ModelProblem.stalled``) ends there; one whose budget cannot pay for another iteration raises
+    ``BudgetExceeded``. The result is the best point simulated (every iterate IPOPT returns was simulated)."""
+    per_iteration = head.size + 2
+    theta, _ = fit_ipopt(problem, head, lo, hi, max_iter,
+                         stop=lambda: problem.stalled(3 * per_iteration) or problem.spent(per_iteration))
+    if problem.spent(per_iteration) and not problem.stalled(3 * per_iteration):
+        raise BudgetExceeded(f"the fit used up its budget of {problem.budget.limit / problem.stop:.4g} simulations "
+                             "before it converged")
+    return problem.best[1] if problem.best is not None else theta
+
+
+def _fmu_effects(effects: tuple[str, ...]) -> tuple[str, ...]:
+    """The library effects among ``effects`` (flexibility is the model itself, not an FMU effect)."""
+    return tuple(e for e in effects if e != FLEXIBILITY)
+
+
+def _layout(model: Fitted) -> list[Any]:
+    st = model.state
+    return [c for name in _fmu_effects(model.effects) for c in coordinates(name, st.scales, st.sens.get(name))]
+
+
+def _magnitude_gradient(name: str, coords: list[Any], x: np.ndarray) -> np.ndarray:
+    """d(magnitude)/dx of effect ``name`` (for the delta method)."""
+    if name == "kinematic_error":
+        c, s = coords[0].value(x[0]), coords[1].value(x[1])
+        A = math.hypot(c, s) or 1e-300
+        return np.array([c / A * coords[0].scale, s / A * coords[1].scale])
+    g = np.zeros(len(coords))
+    g[0] = coords[0].scale * (1.0 if name != "asymmetric_friction" else math.copysign(1.0, x[0] or 1.0))
+    return g
+
+
+def _metrics_of(log: DriveLog, rl: np.ndarray, rm: np.ndarray, stop: int, sigma: float) -> dict[str, float]:
+    y_l, y_m = log.load_pos_rad, log.motor_pos_rad
+    held = slice(stop, None)
+    return {"nrmse_load": rms(rl) / float(np.std(y_l)), "nrmse_motor": rms(rm) / float(np.std(y_m)),
+            "relative_error_pct": float(100 * np.linalg.norm(rl) / np.linalg.norm(y_l - y_l.mean())),
+            "heldback_nrmse_load": rms(rl[held]) / float(np.std(y_l[held])),
+            "heldback_relative_error_pct": float(100 * np.linalg.norm(rl[held])
+                                                 / np.linalg.norm(y_l[held] - y_l[held].mean())),
+            "residual_rms_load_rad": rms(rl), "residual_over_noise_load": rms(rl) / sigma,
+            "train_over_noise_load": rms(rl[:stop]) / sigma, "heldback_over_noise_load": rms(rl[held]) / sigma}
+
+
+def split_training(log: DriveLog, holdout: DriveLog | None) -> tuple[DriveLog, int]:
+    """The log to simulate (training first) and the training length."""
+    if holdout is None:
+        return log, int(round((1 - HOLDBACK_FRACTION) * log.n))
+    if abs(holdout.dt - log.dt) > 1e-9 * log.dt:
+        raise LogError(f"{holdout.source}: the held-back log must have the training log's sample rate "
+                       f"({log.meta.sample_rate_hz} Hz), got {holdout.meta.sample_rate_hz} Hz")
+    if holdout.load_pos_rad is None:
+        raise LogError(f"{holdout.source}: the held-back log needs load_pos_rad like the training log")
+    # the held-back log continues the training log: its torque is applied after the training log's last sample
+    joined = DriveLog(np.concatenate([log.time_s, log.time_s[-1] + log.dt + holdout.time_s - holdout.time_s[0]]),
+                      np.concatenate([log.motor_torque_Nm, holdout.motor_torque_Nm]),
+                      np.concatenate([log.motor_pos_rad, holdout.motor_pos_rad - holdout.motor_pos_rad[0]
+                                      + log.motor_pos_rad[-1]]),
+                      np.concatenate([log.load_pos_rad, holdout.load_pos_rad - holdout.load_pos_rad[0]
+                                      + log.load_pos_rad[-1]]), log.meta, source=f"{log.source}+{holdout.source}")
+    return joined, log.n
+
+
+def truncate_log(log: DriveLog, stop: int) -> DriveLog:
+    return replace(log, time_s=log.time_s[:stop], motor_torque_Nm=log.motor_torque_Nm[:stop],
+                   motor_pos_rad=log.motor_pos_rad[:stop], load_pos_rad=log.load_pos_rad[:stop])

@@ -1,0 +1,145 @@
+"""Screening of candidate effects before any refit: the score (Lagrange-multiplier) test of each candidate's
+parameters at zero, at the current model.
+
+For residuals ``r`` of the current model (noise-normalised, its unknowns at their optimum) and the Jacobian columns
+``J`` of its unknowns, a candidate effect adds unknowns ``beta`` whose value 0 is the current model; their Jacobian
+columns ``B`` at beta = 0 (through the same simulation, by a one-sided difference) give the score of the effect
+after the current unknowns are partialled out::
+
+    Z = B - J (J'J)^-1 J'B,      s = Z' r,      step = (Z'Z)^-1 s
+
+* ``statistic`` = s' (Z'Z)^-1 s / sigma^2 with sigma^2 = |r_perp|^2 / (n - p): the LM statistic (n R^2 form),
+  chi-square with ``df`` degrees of freedom under the null hypothesis "the effect is absent and the current model is
+  right" with white sensor noise (what the sensor model of every fit here assumes). It is also the cost a
+  Gauss-Newton step in the candidate's direction would remove, in noise units. The candidates are ranked by it and
+  the decision uses it.
+* ``robust`` = s' V^-1 s with V = sum over blocks of (Z_b' e_b)(Z_b' e_b)', e = r_perp - Z step: the same test with a
+  variance that allows correlated residuals inside a block, reported beside it (``p_robust``). It is not the
+  decision: an effect whose signature lives in a few blocks of a log (the slides of a torque-step log) cannot reach
+  a robust statistic above the number of those blocks (measured: a viscous motor friction that leaves the base model
+  1.22x the noise scored LM 2610 but robust 7.5, p = 0.003). Correlated sensor noise would make the LM statistic
+  pass candidates that do not help; the acceptance rule after the refit (a Diebold-Mariano test with a Newey-West
+  variance) then rejects them: the screen's errors cost time, not answers.
+* A parameter that is bounded at zero (a viscous coefficient, a Stribeck ratio, a hardening, a hysteresis torque)
+  can only move one way: when the step points out of the admissible side the statistic is 0 (p = 1), else the
+  p-value is half the chi-square tail (the chi-bar-square mixture of a boundary null).
+* An effect with a nonlinear parameter that the data cannot see at zero magnitude (a Stribeck velocity, a hysteresis
+  saturation deflection) is tested on a small grid of it; the grid's best point is the candidate's result and its
+  p-value is multiplied by the grid size (Bonferroni), so that searching the grid does not make the test liberal.
+
+Nothing here knows a model: the plug-ins build ``r``, ``J`` and ``B`` (``ident.diagnosis.models``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+#: a candidate passes the screen when its (grid-corrected) p-value is below this level
+SCREEN_LEVEL = 1e-3
+#: blocks of the robust variance: enough for a stable estimate of a 1-2 parameter score variance
+ROBUST_BLOCKS = 50
+
+
+@dataclass
+class ScoreTest:
+    """The screen's verdict on one candidate (at its best grid point)."""
+
+    candidate: str
+    statistic: float                 # LM statistic (iid, residual variance): ranking, cost removed by one step
+    robust: float                    # block-robust LM statistic: the decision
+    df: int
+    p_value: float                   # of the statistic; one-sided where the parameter is bounded; x grid size
+    grid_size: int = 1
+    grid_point: dict[str, float] = field(default_factory=dict)   # the nonlinear parameters at the best point
+    step: np.ndarray | None = None   # Gauss-Newton step of [current unknowns, candidate unknowns] at that point
+    screened: bool = True            # False: the candidate cannot be tested at zero and is always refitted
+    note: str = ""
+    p_robust: float = math.nan       # of the robust statistic, the same corrections (information only)
+    start: dict[str, float] = field(default_factory=dict)   # the candidate's unknowns to start its refit from
+    sensitivity: dict[str, float] = field(default_factory=dict)   # each unknown's size that moves the fit by 1 sigma
+
+    @property
+    def passed(self) -> bool:
+        return (not self.screened) or self.p_value < SCREEN_LEVEL
+
+    def row(self) -> dict[str, Any]:
+        return {"candidate": self.candidate, "lm_statistic": self.statistic, "lm_robust": self.robust,
+                "df": self.df, "p_value": self.p_value, "p_robust": self.p_robust, "grid_size": self.grid_size,
+                "grid_point": ", ".join(f"{k} = {v:.4g}" for k, v in self.grid_point.items()),
+                "passed": self.passed, "note": self.note}
+
+
+def partial_out(J: np.ndarray) -> np.ndarray:
+    """Orthonormal basis of the current unknowns' columns (rank-revealing: a direction the data do not see is
+    dropped rather than inverted)."""
+    if J.size == 0:
+        return np.zeros((J.shape[0], 0))
+    U, sv, _ = np.linalg.svd(J, full_matrices=False)
+    keep = sv > sv[0] * 1e-10 if sv.size else np.zeros(0, dtype=bool)
+    return U[:, keep]
+
+
+def score_test(r: np.ndarray, Q: np.ndarray, B: np.ndarray, bounded: tuple[bool, ...],
+               blocks: int = ROBUST_BLOCKS) -> tuple[float, float, np.ndarray, bool]:
+    """(statistic, robust statistic, step of the candidate's unknowns, admissible) for residuals ``r``, the
+    orthonormal basis ``Q`` of the current unknowns' columns (``partial_out``) and the candidate's columns ``B``.
+    ``bounded[j]``: unknown j may only grow from 0. The step is the Gauss-Newton step that lowers |r|^2."""
+    rr = r - Q @ (Q.T @ r)
+    Z = B - Q @ (Q.T @ B)
+    A = Z.T @ Z
+    if not np.all(np.isfinite(A)) or np.linalg.matrix_rank(A) < A.shape[0]:
+        return 0.0, 0.0, np.zeros(B.shape[1]), False
+    s = Z.T @ rr
+    step = -np.linalg.solve(A, s)         # r is model - data: the step that lowers the cost is -A^-1 s
+    n, p = r.size, Q.shape[1] + B.shape[1]
+    sigma2 = max(float(rr @ rr) / max(n - p, 1), 1e-300)
+    lm = float(s @ np.linalg.solve(A, s)) / sigma2
+    size = max(1, n // blocks)
+    e = rr + Z @ step
+    parts = np.array([Z[i:i + size].T @ e[i:i + size] for i in range(0, n, size)])
+    V = parts.T @ parts
+    try:
+        robust = float(s @ np.linalg.solve(V, s))
+    except np.linalg.LinAlgError:
+        robust = 0.0
+    admissible = all(not b or x > 0 for b, x in zip(bounded, step))
+    return lm, robust, step, admissible
+
+
+def p_value(statistic: float, df: int, admissible: bool, one_sided: bool) -> float:
+    """Chi-square tail of a statistic; a boundary null (one bounded unknown) halves it, an inadmissible step
+    gives 1."""
+    if not admissible:
+        return 1.0
+    p = float(stats.chi2.sf(statistic, df))
+    return 0.5 * p if one_sided else p
+
+
+def best_of_grid(name: str, points: list[tuple[dict[str, float], float, float, np.ndarray, bool]], df: int,
+                 one_sided: bool) -> ScoreTest:
+    """The candidate's result over its grid: the admissible point with the largest statistic; its p-value times
+    the grid size (Bonferroni). ``points``: (grid point, statistic, robust, step, admissible)."""
+    scored = [(pt, lm, rb, st, ok) for pt, lm, rb, st, ok in points]
+    usable = [x for x in scored if x[4]] or scored
+    pt, lm, rb, step, ok = max(usable, key=lambda x: x[1])
+    g = len(points)
+    p = min(1.0, g * p_value(lm, df, ok, one_sided))
+    note = "" if ok else "the score points to a value the effect cannot take (e.g. negative friction): not supported"
+    return ScoreTest(name, lm if ok else 0.0, rb if ok else 0.0, df, p, g, dict(pt), step, True, note,
+                     min(1.0, g * p_value(rb, df, ok, one_sided)))
+
+
+def screen_table(tests: list[ScoreTest]) -> pd.DataFrame:
+    """The screen's results, ranked by the statistic (the order the candidates are refitted in)."""
+    rows = [t.row() for t in ranked(tests)]
+    return pd.DataFrame(rows)
+
+
+def ranked(tests: list[ScoreTest]) -> list[ScoreTest]:
+    """Candidates that cannot be screened first (they are always refitted), then by decreasing statistic."""
+    return sorted(tests, key=lambda t: (t.screened, -t.statistic if math.isfinite(t.statistic) else 0.0))
