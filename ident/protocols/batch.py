@@ -68,10 +68,43 @@ def run_batch(fn: Callable[[T], R], items: Sequence[T], *, scheduler: str | None
             return _gather(client, fn, items, progress, desc, scheduler)
         finally:
             client.close()
-    return _run_local(fn, items, min(workers or default_workers(), len(items)), progress, desc)
+    with _local_client(min(workers or default_workers(), len(items))) as client:
+        return _gather(client, fn, items, progress, desc, "the local cluster")
 
 
-def _run_local(fn: Callable[[T], R], items: list[T], n: int, progress: bool, desc: str) -> list[R]:
+Runner = Callable[..., list]
+
+
+@contextmanager
+def batch_session(*, scheduler: str | None = None, workers: int | None = None) -> Iterator[Runner]:
+    """One cluster for several batches: yields ``run(fn, items, progress=False, desc="runs")``, which works like
+    ``run_batch`` but reuses the session's workers (a study of several stages starts its cluster once). Same
+    options and faults as ``run_batch``; the cluster is shut down when the block ends, also on an interrupt."""
+    check_workers(workers)
+    if workers == 0 and scheduler is None:
+        yield lambda fn, items, progress=False, desc="runs": [fn(x) for x in tqdm(list(items), desc=desc,
+                                                                                   disable=not progress)]
+        return
+    with (_remote_client(scheduler) if scheduler is not None else _local_client(workers or default_workers())) \
+            as client:
+        where = scheduler or "the local cluster"
+        yield lambda fn, items, progress=False, desc="runs": (
+            _gather(client, fn, list(items), progress, desc, where) if len(items) else [])
+
+
+@contextmanager
+def _remote_client(scheduler: str) -> Iterator[Any]:
+    client = connect(scheduler)
+    try:
+        yield client
+    finally:
+        client.close()
+
+
+@contextmanager
+def _local_client(n: int) -> Iterator[Any]:
+    """A client of a new local cluster of ``n`` worker processes, shut down (and its scratch folder removed) when
+    the block ends."""
     import logging
 
     import dask
@@ -86,7 +119,7 @@ def _run_local(fn: Callable[[T], R], items: list[T], n: int, progress: bool, des
                 cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                                        local_directory=scratch, env={"TMPDIR": scratch}, silence_logs=logging.ERROR)
                 client = Client(cluster)
-            return _gather(client, fn, items, progress, desc, "the local cluster")
+            yield client
     finally:
         _shut_down(client, cluster, interrupted=sys.exc_info()[0] is not None)
         shutil.rmtree(scratch, ignore_errors=True)
