@@ -174,8 +174,14 @@ def effect_ranges(base: DriveParams | None = None, f_l_star_min: float = 0.01) -
     )}
 
 
-DRIVE_KNOBS: tuple[Knob, ...] = (Knob("K_star_rel", 1 - DRIVE_SPAN, 1 + DRIVE_SPAN, "1"),
-                                 Knob("J_l_star_rel", 1 - DRIVE_SPAN, 1 + DRIVE_SPAN, "1"))
+def drive_knobs(span: float = DRIVE_SPAN) -> tuple[Knob, ...]:
+    """The drive's own K* and J_l*, as factors 1 - span ... 1 + span of the given drive's."""
+    if not 0.0 <= span < 1.0:
+        raise ValueError(f"drive span = {span!r}: K* and J_l* factors 1 +- span need 0 <= span < 1")
+    return (Knob("K_star_rel", 1 - span, 1 + span, "1"), Knob("J_l_star_rel", 1 - span, 1 + span, "1"))
+
+
+DRIVE_KNOBS: tuple[Knob, ...] = drive_knobs()
 
 __all__ = ["ARCMIN", "ARCSEC", "CHA_STIFFNESS", "DRIVE_KNOBS", "DRIVE_SPAN", "EffectRange", "Knob",
-           "cubic_hardening", "effect_ranges"]
+           "cubic_hardening", "drive_knobs", "effect_ranges"]

@@ -36,7 +36,7 @@ from ..model.params import DriveParams
 from ..model.plant import PlantError
 from ..protocols.resolution import NoConsistentStep, ThresholdNotFound, impulse_resolution, linear_resolution
 from ..protocols.sweep import friction_levels
-from .effect_ranges import DRIVE_KNOBS, EffectRange, effect_ranges
+from .effect_ranges import DRIVE_KNOBS, EffectRange, Knob, drive_knobs, effect_ranges
 from .paper_claims import CLAIMS, F_L_EXPERIMENT, F_L_IMPULSE, ClaimInputs, ClaimValue, claim_values
 
 DEFAULT_BUDGET = 96      # screening evaluations (see bench/paper_effects.py for what fits in 10 min on 2 cores)
@@ -88,24 +88,41 @@ class Candidate:
         return self.params.with_values(f_l_star=float(f_l_star))
 
 
-def make_candidate(base: DriveParams, ranges: Mapping[str, EffectRange], effects: Sequence[str],
-                   u: Sequence[float]) -> Candidate:
-    """The candidate of ``effects`` at unit-cube point ``u`` on drive ``base``."""
-    dims = len(DRIVE_KNOBS) + sum(len(ranges[e].knobs) for e in effects)
-    if len(u) != dims:
-        raise ValueError(f"{'+'.join(effects) or 'drive'}: expected a point with {dims} coordinates, got {len(u)}")
-    drive_k = {k.name: k.value(x) for k, x in zip(DRIVE_KNOBS, u)}
-    p = base.with_values(K_star=base.K_star * drive_k["K_star_rel"], J_l_star=base.J_l_star * drive_k["J_l_star_rel"])
-    knobs: dict[str, dict[str, float]] = {"drive": {"K_star": p.K_star, "J_l_star": p.J_l_star, **drive_k}}
-    fmu: dict[str, dict[str, float]] = {}
-    i = len(DRIVE_KNOBS)
-    for e in effects:
-        rng = ranges[e]
-        knobs[e] = {k.name: k.value(x) for k, x in zip(rng.knobs, u[i:i + len(rng.knobs)])}
-        fmu[e] = rng.to_fmu(knobs[e], p)
-        i += len(rng.knobs)
-    p = p.with_values(**{k: v for values in fmu.values() for k, v in values.items()})
-    return Candidate(tuple(effects), tuple(float(x) for x in u), knobs, fmu, p)
+@dataclass(frozen=True)
+class Space:
+    """Where the search looks: the given drive ``base``, the effects' plausible ``ranges`` and the drive's own knobs
+    (K*, J_l* factors). A candidate is a set of effects and a point of the unit cube of their knobs."""
+
+    base: DriveParams
+    ranges: Mapping[str, EffectRange]
+    drive: tuple[Knob, ...] = DRIVE_KNOBS
+
+    def knobs(self, effects: Sequence[str]) -> list[Knob]:
+        """The knobs of a candidate with ``effects``, in the order of its point: the drive's, then each effect's."""
+        return [*self.drive, *(k for e in effects for k in self.ranges[e].knobs)]
+
+    def candidate(self, effects: Sequence[str], u: Sequence[float]) -> Candidate:
+        """The candidate of ``effects`` at unit-cube point ``u``."""
+        dims = len(self.knobs(effects))
+        if len(u) != dims:
+            raise ValueError(f"{'+'.join(effects) or 'drive'}: expected a point with {dims} coordinates, got {len(u)}")
+        drive_k = {k.name: k.value(x) for k, x in zip(self.drive, u)}
+        b = self.base
+        p = b.with_values(K_star=b.K_star * drive_k["K_star_rel"], J_l_star=b.J_l_star * drive_k["J_l_star_rel"])
+        knobs: dict[str, dict[str, float]] = {"drive": {"K_star": p.K_star, "J_l_star": p.J_l_star, **drive_k}}
+        fmu: dict[str, dict[str, float]] = {}
+        i = len(self.drive)
+        for e in effects:
+            rng = self.ranges[e]
+            knobs[e] = {k.name: k.value(x) for k, x in zip(rng.knobs, u[i:i + len(rng.knobs)])}
+            fmu[e] = rng.to_fmu(knobs[e], p)
+            i += len(rng.knobs)
+        p = p.with_values(**{k: v for values in fmu.values() for k, v in values.items()})
+        return Candidate(tuple(effects), tuple(float(x) for x in u), knobs, fmu, p)
+
+    def unchanged(self) -> Candidate:
+        """The given drive itself: no effect, the middle of the (symmetric) drive knobs."""
+        return self.candidate((), (0.5,) * len(self.drive))
 
 
 # -- evaluation --------------------------------------------------------------------------------------------------------
@@ -248,10 +265,6 @@ def _lhs(n: int, dim: int, seed: Sequence[int], lo: np.ndarray | None = None,
     return lo + u * (hi - lo)
 
 
-def _dim(ranges: Mapping[str, EffectRange], effects: Sequence[str]) -> int:
-    return len(DRIVE_KNOBS) + sum(len(ranges[e].knobs) for e in effects)
-
-
 def promise(evals: Sequence[Evaluation], effect: str) -> float:
     """How much an effect alone moved the claims: the sum over claims of how far its best misfit lies below the best
     misfit of the drive alone (0 when it never did better); failed evaluations count as misfit 1e6."""
@@ -271,6 +284,7 @@ class SearchPlan:
     n2: int
     n_pairs: int
     refine: int
+    grid: int = 0        # > 0: a full grid of this many values per knob replaced stages 1-3
 
 
 def plan(budget: int, n_effects: int) -> SearchPlan:
@@ -296,8 +310,7 @@ class PaperSearch:
     """The search's result: every evaluation (``stage``: screen-single, screen-pair, refine-k, confirm), the ranges
     and fidelities used, the plan and the seed. ``pareto()``: the confirmed Pareto set, best first."""
 
-    base: DriveParams
-    ranges: dict[str, EffectRange]
+    space: Space
     screen: Fidelity
     full: Fidelity
     plan: SearchPlan
@@ -305,6 +318,14 @@ class PaperSearch:
     seed: int
     evaluations: list[Evaluation]
     elapsed_s: float = math.nan
+
+    @property
+    def base(self) -> DriveParams:
+        return self.space.base
+
+    @property
+    def ranges(self) -> Mapping[str, EffectRange]:
+        return self.space.ranges
 
     def screened(self) -> list[Evaluation]:
         return [e for e in self.evaluations if e.fidelity.name == self.screen.name and e.stage != "confirm"]
@@ -314,7 +335,8 @@ class PaperSearch:
 
     def reference(self) -> Evaluation:
         """The given drive unchanged (no effect, nominal K*, J_l*) with the full protocol."""
-        return next(e for e in self.confirmed() if not e.candidate.effects and e.candidate.u == (0.5, 0.5))
+        u = self.space.unchanged().u
+        return next(e for e in self.confirmed() if not e.candidate.effects and e.candidate.u == u)
 
     def pareto(self) -> list[Evaluation]:
         """The Pareto set of the confirmed candidates (the unchanged drive included), best first."""
@@ -354,14 +376,14 @@ def pareto_entry(e: Evaluation) -> dict[str, Any]:
             "error": e.error}
 
 
-def _points(ranges: Mapping[str, EffectRange], effects: tuple[str, ...], n: int, seed: Sequence[int],
-            base: DriveParams, center: Sequence[float] | None = None, half: float = 0.5) -> list[Candidate]:
-    dim = _dim(ranges, effects)
+def _points(space: Space, effects: tuple[str, ...], n: int, seed: Sequence[int],
+            center: Sequence[float] | None = None, half: float = 0.5) -> list[Candidate]:
+    dim = len(space.knobs(effects))
     lo = hi = None
     if center is not None:
         c = np.asarray(center)
         lo, hi = np.clip(c - half, 0.0, 1.0), np.clip(c + half, 0.0, 1.0)
-    return [make_candidate(base, ranges, effects, u) for u in _lhs(n, dim, seed, lo, hi)]
+    return [space.candidate(effects, u) for u in _lhs(n, dim, seed, lo, hi)]
 
 
 def _pairs_by_promise(evals: Sequence[Evaluation], effects: Sequence[str]) -> list[tuple[str, str]]:
@@ -370,8 +392,7 @@ def _pairs_by_promise(evals: Sequence[Evaluation], effects: Sequence[str]) -> li
     return sorted(pairs, key=lambda ab: -(score[ab[0]] + score[ab[1]]))  # stable: library order on ties
 
 
-def _refine(evals: list[Evaluation], n: int, rnd: int, seed: int, base: DriveParams,
-            ranges: Mapping[str, EffectRange]) -> list[Candidate]:
+def _refine(evals: list[Evaluation], n: int, rnd: int, seed: int, space: Space) -> list[Candidate]:
     """Up to ``n`` points around the best ``REFINE_CENTERS`` screened Pareto points, in boxes of half-width
     ``REFINE_HALF_WIDTH / 2^(rnd - 1)``."""
     centers = ranked_pareto(evals)[:REFINE_CENTERS]
@@ -379,16 +400,17 @@ def _refine(evals: list[Evaluation], n: int, rnd: int, seed: int, base: DrivePar
     out = []
     for i, (ev, k) in enumerate(zip(centers, per)):
         if k:
-            out += _points(ranges, ev.candidate.effects, k, (seed, 3, rnd, i), base, ev.candidate.u,
+            out += _points(space, ev.candidate.effects, k, (seed, 3, rnd, i), ev.candidate.u,
                            REFINE_HALF_WIDTH / 2 ** (rnd - 1))
     return out
 
 
-def _to_confirm(screened: list[Evaluation], k: int) -> list[Candidate]:
-    """The ``k`` best screened Pareto points of distinct effect sets."""
+def _to_confirm(screened: list[Evaluation], k: int, unchanged: Candidate) -> list[Candidate]:
+    """The ``k`` best screened Pareto points of distinct effect sets (the unchanged drive is confirmed anyway)."""
     out, seen = [], set()
     for ev in ranked_pareto(screened):
-        if ev.candidate.effects not in seen and not ev.error:
+        same = (ev.candidate.effects, ev.candidate.u) == (unchanged.effects, unchanged.u)
+        if ev.candidate.effects not in seen and not ev.error and not same:
             seen.add(ev.candidate.effects)
             out.append(ev.candidate)
         if len(out) == k:
@@ -398,42 +420,66 @@ def _to_confirm(screened: list[Evaluation], k: int) -> list[Candidate]:
 
 def search_paper(base: DriveParams | None = None, *, budget: int = DEFAULT_BUDGET, confirm: int = DEFAULT_CONFIRM,
                  seed: int = 0, effects: Sequence[str] | None = None, screen: Fidelity = SCREEN,
-                 full: Fidelity = FULL, workers: int | None = None, scheduler: str | None = None,
-                 progress: bool = False) -> PaperSearch:
+                 full: Fidelity = FULL, grid: int = 0, drive_span: float = 0.5, workers: int | None = None,
+                 scheduler: str | None = None, progress: bool = False) -> PaperSearch:
     """Search the effect library (``effects``: a subset of its names, all by default) for drives that reproduce the
     paper's claims; ``budget`` screening evaluations, then ``confirm`` candidates and the unchanged drive with the
-    full protocol. Deterministic for a given ``seed``; on Dask (``workers=0``: serially in this process)."""
+    full protocol; K* and J_l* vary within +-``drive_span`` of ``base``'s. Deterministic for a given ``seed``; on
+    Dask (``workers=0``: serially in this process).
+
+    ``grid`` > 0 replaces the screening stages by an exhaustive grid (``grid`` values per knob, ends included; one
+    value for a knob whose range is a point) over the drive alone, every single effect and every pair (``budget``
+    and ``seed`` are then unused): a coarse, checkable search for small studies and tests."""
     from ..protocols.batch import batch_session
 
-    base = base or DriveParams()
-    ranges = effect_ranges(base, min(min(screen.levels), min(full.levels)))
+    space = _space(base or DriveParams(), effects, drive_span, min(min(screen.levels), min(full.levels)))
+    names = list(space.ranges)
+    grid = whole("grid", grid, 0)
+    grid_cands = _grid(space, names, grid) if grid else []
+    the_plan = SearchPlan(len(grid_cands), 0, 0, len(names) * (len(names) - 1) // 2, 0, grid) if grid else \
+        plan(budget, len(names))
+    confirm = whole("confirm", confirm, 0)
+    t0 = time.perf_counter()
+    with batch_session(scheduler=scheduler, workers=workers) as run:
+        evals = evaluate(grid_cands, screen, run, stage="grid", progress=progress) if grid else \
+            _screen(space, the_plan, seed, run, progress, screen)
+        cands = [space.unchanged()] + _to_confirm(evals, confirm, space.unchanged())
+        evals += evaluate(cands, full, run, stage="confirm", progress=progress)
+    return PaperSearch(space, screen, full, the_plan, confirm, seed, evals, time.perf_counter() - t0)
+
+
+def _space(base: DriveParams, effects: Sequence[str] | None, span: float, f_l_star_min: float) -> Space:
+    ranges = effect_ranges(base, f_l_star_min)
     names = list(ranges) if effects is None else list(effects)
     unknown = [e for e in names if e not in ranges]
     if unknown or len(set(names)) != len(names):
         raise ValueError(f"effects {unknown or names}: use distinct names among {', '.join(ranges)}")
-    ranges = {e: ranges[e] for e in names}
-    the_plan = plan(budget, len(names))
-    confirm = whole("confirm", confirm, 0)
-    t0 = time.perf_counter()
-    with batch_session(scheduler=scheduler, workers=workers) as run:
-        evals = _screen(base, ranges, names, the_plan, seed, run, progress, screen)
-        cands = [make_candidate(base, ranges, (), (0.5, 0.5))] + _to_confirm(evals, confirm)
-        evals += evaluate(cands, full, run, stage="confirm", progress=progress)
-    return PaperSearch(base, ranges, screen, full, the_plan, confirm, seed, evals, time.perf_counter() - t0)
+    return Space(base, {e: ranges[e] for e in names}, drive_knobs(span))
 
 
-def _screen(base: DriveParams, ranges: Mapping[str, EffectRange], names: list[str], p: SearchPlan, seed: int,
-            run: Any, progress: bool, screen: Fidelity) -> list[Evaluation]:
+def _grid(space: Space, names: list[str], n: int) -> list[Candidate]:
+    """Every point of an ``n``-value grid per knob for the drive alone, each effect and each pair of effects."""
+    import itertools
+
+    if n < 2:
+        raise ValueError(f"grid = {n}: a grid needs at least 2 values per knob (the ends of each range)")
+    subsets = [()] + [(e,) for e in names] + [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
+    axis = lambda k: [0.5] if k.lo == k.hi else np.linspace(0.0, 1.0, n)  # noqa: E731
+    return [space.candidate(s, u) for s in subsets for u in itertools.product(*map(axis, space.knobs(s)))]
+
+
+def _screen(space: Space, p: SearchPlan, seed: int, run: Any, progress: bool, screen: Fidelity) -> list[Evaluation]:
     """Stages 1-3 at the screening fidelity: singles, pairs in order of promise, refinement rounds."""
+    names = list(space.ranges)
     singles = [()] + [(e,) for e in names]
-    cands = [c for i, s in enumerate(singles) for c in _points(ranges, s, p.n1, (seed, 1, i), base)]
+    cands = [c for i, s in enumerate(singles) for c in _points(space, s, p.n1, (seed, 1, i))]
     evals = evaluate(cands, screen, run, stage="screen-single", progress=progress)
     pairs = _pairs_by_promise(evals, names)[:p.n_pairs]
-    cands = [c for i, s in enumerate(pairs) for c in _points(ranges, s, p.n2, (seed, 2, i), base)]
+    cands = [c for i, s in enumerate(pairs) for c in _points(space, s, p.n2, (seed, 2, i))]
     evals += evaluate(cands, screen, run, stage="screen-pair", progress=progress)
     left, rnd = p.refine, 1
     while left > 0:
-        cands = _refine(evals, min(left, REFINE_CENTERS * REFINE_POINTS), rnd, seed, base, ranges)
+        cands = _refine(evals, min(left, REFINE_CENTERS * REFINE_POINTS), rnd, seed, space)
         if not cands:
             break
         evals += evaluate(cands, screen, run, stage=f"refine-{rnd}", progress=progress)
@@ -442,5 +488,5 @@ def _screen(base: DriveParams, ranges: Mapping[str, EffectRange], names: list[st
 
 
 __all__ = ["DEFAULT_BUDGET", "DEFAULT_CONFIRM", "FULL", "SCREEN", "Candidate", "Evaluation", "Fidelity",
-           "PaperSearch", "SearchPlan", "evaluate", "make_candidate", "pareto_entry", "pareto_front", "plan",
+           "PaperSearch", "SearchPlan", "Space", "evaluate", "pareto_entry", "pareto_front", "plan",
            "promise", "rank_key", "ranked_pareto", "search_paper"]

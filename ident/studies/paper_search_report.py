@@ -83,7 +83,7 @@ def reach(search: PaperSearch) -> dict[str, dict[str, Any]]:
 def _needs_words(r: dict[str, Any]) -> str:
     if not r["needs"]:
         return "no evaluated set"
-    sets = ["the drive alone (K*, J_l* within +-50 %)" if not s else " + ".join(s) for s in r["needs"]]
+    sets = ["the drive alone (its K*, J_l* in their range)" if not s else " + ".join(s) for s in r["needs"]]
     return " or ".join(sets)
 
 
@@ -137,8 +137,9 @@ def _ranges_md(search: PaperSearch) -> str:
     for e in search.ranges.values():
         knobs = "; ".join(f"{k.name} {k.lo:.3g} ... {k.hi:.3g} {k.unit}{' (log)' if k.log else ''}" for k in e.knobs)
         rows.append((e.effect, knobs, e.source if e.cited else "**no cited source**", e.states, e.bound))
-    drive = f"K* {search.base.K_star:.4g}, J_l* {search.base.J_l_star:.4g} times 0.5 ... 1.5 (issue 19)"
-    rows.append(("(the drive)", drive, "-", "-", "the drive's own stiffness and inertia ratio within +-50 %"))
+    k = search.space.drive[0]
+    drive = f"K* {search.base.K_star:.4g}, J_l* {search.base.J_l_star:.4g} times {k.lo:g} ... {k.hi:g}"
+    rows.append(("(the drive)", drive, "-", "-", "the drive's own stiffness and inertia ratio (issue 19: +-50 %)"))
     return md_table((["effect", "searched (source units)", "source", "the source states", "range in the model"], rows))
 
 
@@ -164,11 +165,14 @@ def _design_md(search: PaperSearch) -> str:
     p, s, f = search.plan, search.screen, search.full
     counts = pd.Series([e.stage for e in search.evaluations]).value_counts().to_dict()
     stages = ", ".join(f"{k} {v}" for k, v in counts.items())
-    return (f"Seed {search.seed}; screening budget {p.budget} evaluations: {p.n1} points for the drive alone and "
-            f"each of {len(search.ranges)} effects, {p.n2} for each of {p.n_pairs} pairs (ordered by how much their "
-            f"members moved the claims alone), {p.refine} in refinement rounds around the best screened Pareto "
-            f"points; then {search.confirm} candidates of distinct effect sets and the unchanged drive with the full "
-            f"protocol. Evaluations per stage: {stages}. Screening fidelity: {len(s.levels)} levels "
+    screening = (f"an exhaustive grid of {p.grid} values per knob over the drive alone, each of "
+                 f"{len(search.ranges)} effects and all {p.n_pairs} pairs ({p.budget} evaluations)" if p.grid else
+                 f"seed {search.seed}; screening budget {p.budget} evaluations: {p.n1} points for the drive alone "
+                 f"and each of {len(search.ranges)} effects, {p.n2} for each of {p.n_pairs} pairs (ordered by how "
+                 f"much their members moved the claims alone), {p.refine} in refinement rounds around the best "
+                 "screened Pareto points")
+    return (f"Screening: {screening}; then {search.confirm} candidates of distinct effect sets and the unchanged "
+            f"drive with the full protocol. Evaluations per stage: {stages}. Screening fidelity: {len(s.levels)} levels "
             f"({', '.join(f'{x:.3g}' for x in s.levels)}), N = {s.n_pulses} pulses, {s.n_steps} PD steps; full: "
             f"{len(f.levels)} levels, N = {f.n_pulses}, {f.n_steps} PD steps; both also at f_l* = "
             f"{F_L_EXPERIMENT:g}. Wall time {search.elapsed_s:.0f} s (not used by any decision).")
@@ -264,12 +268,14 @@ Every evaluation (stage, knobs, FMU parameters, each claim's value, verdict and 
 
 def write_paper_search(out_dir: str | Path, *, base: DriveParams | None = None, budget: int = DEFAULT_BUDGET,
                        confirm: int = DEFAULT_CONFIRM, seed: int = 0, effects: Sequence[str] | None = None,
-                       screen: Fidelity = SCREEN, full: Fidelity = FULL, workers: int | None = None,
-                       scheduler: str | None = None, progress: bool = False) -> tuple[PaperSearch, Path]:
-    """Run the search and write ``paper_search.md`` with its JSON, CSV and figures into ``out_dir`` (all files
-    appear only once all are written)."""
+                       screen: Fidelity = SCREEN, full: Fidelity = FULL, grid: int = 0, drive_span: float = 0.5,
+                       workers: int | None = None, scheduler: str | None = None,
+                       progress: bool = False) -> tuple[PaperSearch, Path]:
+    """Run the search (``search_paper``, same options) and write ``paper_search.md`` with its JSON, CSV and figures
+    into ``out_dir`` (all files appear only once all are written)."""
     search = search_paper(base, budget=budget, confirm=confirm, seed=seed, effects=effects, screen=screen, full=full,
-                          workers=workers, scheduler=scheduler, progress=progress)
+                          grid=grid, drive_span=drive_span, workers=workers, scheduler=scheduler,
+                          progress=progress)
     out = Path(out_dir)
     with staged_folder(out, last="paper_search.md") as staging:
         r = reach(search)
