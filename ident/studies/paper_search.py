@@ -134,16 +134,17 @@ class _Task:
 
 
 def _run_task(task: _Task) -> tuple[Any, ...]:
-    """(increments µm, A_th) of an impulse protocol, or (resolution µm, counts) of a linear one, or ("error", text):
-    a drive the protocol cannot measure (no threshold, no consistent step, the FMU refusing) scores as failed."""
+    """(increments µm, A_th, run time s) of an impulse protocol, or (resolution µm, counts, run time s) of a linear
+    one, or ("error", text, 0): a drive the protocol cannot measure (no threshold, no consistent step, the FMU
+    refusing) scores as failed. The run time is reported, never used."""
     try:
         if task.kind == "impulse":
             r = impulse_resolution(task.params, task.n)
-            return r.increments_m * 1e6, r.threshold_amplitude
+            return r.increments_m * 1e6, r.threshold_amplitude, r.elapsed_s
         lin = linear_resolution(task.params, n_steps=task.n)
-        return lin.resolution_m * 1e6, lin.counts
+        return lin.resolution_m * 1e6, lin.counts, lin.elapsed_s
     except (ThresholdNotFound, NoConsistentStep, PlantError) as exc:
-        return "error", f"{task.kind} protocol at f_l* = {task.params.f_l_star:.4g}: {type(exc).__name__}: {exc}"
+        return "error", f"{task.kind} protocol at f_l* = {task.params.f_l_star:.4g}: {type(exc).__name__}: {exc}", 0.0
 
 
 @dataclass
@@ -162,6 +163,7 @@ class Evaluation:
     linear_counts: int
     error: str | None = None
     claims: dict[str, ClaimValue] = field(default_factory=dict)
+    task_s: float = 0.0      # run time of its protocol runs, summed (reported by the bench, used by nothing)
 
     @property
     def misfits(self) -> np.ndarray:
@@ -181,7 +183,8 @@ class Evaluation:
         """One table row: the candidate's knobs, its FMU parameters and every claim's value, verdict and misfit."""
         c = self.candidate
         out: dict[str, Any] = dict(stage=self.stage, fidelity=self.fidelity.name, effects=c.label,
-                                   n_met=self.n_met, total_misfit=float(np.sum(self.misfits)), error=self.error or "")
+                                   n_met=self.n_met, total_misfit=float(np.sum(self.misfits)), error=self.error or "",
+                                   task_s=self.task_s)
         out.update({f"{g}.{k}": v for g, kv in c.knobs.items() for k, v in kv.items()})
         out.update({f"fmu.{k}": v for kv in c.fmu.values() for k, v in kv.items()})
         for claim in CLAIMS:
@@ -217,11 +220,12 @@ def _evaluation(c: Candidate, fid: Fidelity, stage: str, slot: dict[int, tuple])
     n = len(fid.levels)
     errors = [r[1] for r in slot.values() if isinstance(r[0], str)]
     f = np.array(fid.levels)
+    task_s = float(sum(r[2] for r in slot.values()))
     if errors:
-        return Evaluation(c, fid, stage, f, [], np.array([]), np.array([]), math.nan, 0, errors[0])
+        return Evaluation(c, fid, stage, f, [], np.array([]), np.array([]), math.nan, 0, errors[0], task_s=task_s)
     incs = [np.asarray(slot[i][0]) for i in range(n)]
     ev = Evaluation(c, fid, stage, f, incs, np.array([slot[i][1] for i in range(n)]), np.asarray(slot[n][0]),
-                    float(slot[n + 1][0]), int(slot[n + 1][1]))
+                    float(slot[n + 1][0]), int(slot[n + 1][1]), task_s=task_s)
     ev.claims = claim_values(ClaimInputs(f, np.array([x.max() for x in incs]), ev.at(F_L_IMPULSE),
                                          incs[int(np.argmax(f))], ev.experiment_um, ev.linear_um, ev.linear_counts))
     return ev
@@ -318,6 +322,7 @@ class PaperSearch:
     seed: int
     evaluations: list[Evaluation]
     elapsed_s: float = math.nan
+    stage_s: dict[str, float] = field(default_factory=dict)   # wall time per stage (reported, used by nothing)
 
     @property
     def base(self) -> DriveParams:
@@ -440,12 +445,17 @@ def search_paper(base: DriveParams | None = None, *, budget: int = DEFAULT_BUDGE
         plan(budget, len(names))
     confirm = whole("confirm", confirm, 0)
     t0 = time.perf_counter()
+    stage_s: dict[str, float] = {}
     with batch_session(scheduler=scheduler, workers=workers) as run:
-        evals = evaluate(grid_cands, screen, run, stage="grid", progress=progress) if grid else \
-            _screen(space, the_plan, seed, run, progress, screen)
-        cands = [space.unchanged()] + _to_confirm(evals, confirm, space.unchanged())
-        evals += evaluate(cands, full, run, stage="confirm", progress=progress)
-    return PaperSearch(space, screen, full, the_plan, confirm, seed, evals, time.perf_counter() - t0)
+        def ev(cands: list[Candidate], fid: Fidelity, stage: str) -> list[Evaluation]:
+            t = time.perf_counter()
+            out = evaluate(cands, fid, run, stage=stage, progress=progress)
+            stage_s[stage] = time.perf_counter() - t   # reported, used by nothing
+            return out
+
+        evals = ev(grid_cands, screen, "grid") if grid else _screen(space, the_plan, seed, ev, screen)
+        evals += ev([space.unchanged()] + _to_confirm(evals, confirm, space.unchanged()), full, "confirm")
+    return PaperSearch(space, screen, full, the_plan, confirm, seed, evals, time.perf_counter() - t0, stage_s)
 
 
 def _space(base: DriveParams, effects: Sequence[str] | None, span: float, f_l_star_min: float) -> Space:
@@ -468,21 +478,22 @@ def _grid(space: Space, names: list[str], n: int) -> list[Candidate]:
     return [space.candidate(s, u) for s in subsets for u in itertools.product(*map(axis, space.knobs(s)))]
 
 
-def _screen(space: Space, p: SearchPlan, seed: int, run: Any, progress: bool, screen: Fidelity) -> list[Evaluation]:
-    """Stages 1-3 at the screening fidelity: singles, pairs in order of promise, refinement rounds."""
+def _screen(space: Space, p: SearchPlan, seed: int, ev: Any, screen: Fidelity) -> list[Evaluation]:
+    """Stages 1-3 at the screening fidelity (``ev(candidates, fidelity, stage)`` evaluates): singles, pairs in
+    order of promise, refinement rounds."""
     names = list(space.ranges)
     singles = [()] + [(e,) for e in names]
-    cands = [c for i, s in enumerate(singles) for c in _points(space, s, p.n1, (seed, 1, i))]
-    evals = evaluate(cands, screen, run, stage="screen-single", progress=progress)
+    evals = ev([c for i, s in enumerate(singles) for c in _points(space, s, p.n1, (seed, 1, i))], screen,
+               "screen-single")
     pairs = _pairs_by_promise(evals, names)[:p.n_pairs]
-    cands = [c for i, s in enumerate(pairs) for c in _points(space, s, p.n2, (seed, 2, i))]
-    evals += evaluate(cands, screen, run, stage="screen-pair", progress=progress)
+    evals += ev([c for i, s in enumerate(pairs) for c in _points(space, s, p.n2, (seed, 2, i))], screen,
+                "screen-pair")
     left, rnd = p.refine, 1
     while left > 0:
         cands = _refine(evals, min(left, REFINE_CENTERS * REFINE_POINTS), rnd, seed, space)
         if not cands:
             break
-        evals += evaluate(cands, screen, run, stage=f"refine-{rnd}", progress=progress)
+        evals += ev(cands, screen, f"refine-{rnd}")
         left, rnd = left - len(cands), rnd + 1
     return evals
 
