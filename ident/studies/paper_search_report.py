@@ -77,6 +77,8 @@ def reach(search: PaperSearch) -> dict[str, dict[str, Any]]:
             best_screened=bs.claims[c.name].value if bs else math.nan,
             best_screened_by=bs.candidate.label if bs else "",
             mover=_mover(search, c.name))
+        out[c.name] = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                       for k, v in out[c.name].items()}
     return out
 
 
@@ -89,7 +91,7 @@ def _needs_words(r: dict[str, Any]) -> str:
 
 def _claim_sentence(name: str, r: dict[str, Any], n_screen: int, n_conf: int) -> str:
     c = BY_NAME[name]
-    fmt = lambda v: f"{v:.3g}" if math.isfinite(v) else "n/a"  # noqa: E731
+    fmt = lambda v: f"{v:.3g}" if v is not None and math.isfinite(v) else "n/a"  # noqa: E731
     head = (f"- **{name}** (paper: {c.quantity}, {c.met_if}): the unchanged drive gives "
             f"{fmt(r['reference'])} ({'met' if r['reference_met'] else 'not met'}). ")
     if r["confirmed"]:
