@@ -300,15 +300,23 @@ def _build_into(tmp: Path, fmi_version: int, token: str, sanitize: bool,
     return fmu
 
 
+RUNNER_SOURCES = ("runner.c", "protocols.c")  # importer-side loops over an FMU's functions (no physics)
+
+
 def build_runner() -> Path:
-    """The importer-side stepping loop (``c/runner.c``) as a shared library, cached like the FMU."""
-    h = hashlib.sha256((C_DIR / "runner.c").read_bytes() + f"{compiler()}|{platform.machine()}".encode())
+    """The importer-side loops (``c/runner.c``: stepping a log; ``c/protocols.c``: the resolution protocols) as one
+    shared library, cached like the FMU (sanitized like it with HDRIVE_SANITIZE=1). ``-ffp-contract=off``: no fused
+    multiply-add, so the protocols' arithmetic rounds exactly as Python's does."""
+    flags = [*(SANITIZE_FLAGS if sanitize_requested() else OPT_FLAGS), "-ffp-contract=off"]
+    h = hashlib.sha256(b"".join((C_DIR / name).read_bytes() for name in RUNNER_SOURCES)
+                       + f"{compiler()}|{platform.machine()}|{flags}".encode())
     target = cache_dir() / f"runner-{h.hexdigest()[:16]}" / f"hd_runner{_shared_suffix()}"
     if target.is_file():
         return target
     target.parent.mkdir(parents=True, exist_ok=True)
     staged = target.parent / f".{target.name}.{os.getpid()}.tmp"
-    cmd = [compiler(), "-shared", "-fPIC", "-std=c99", "-O2", "-Wall", "-o", str(staged), str(C_DIR / "runner.c")]
+    cmd = [compiler(), "-shared", "-fPIC", "-std=c99", *flags, "-Wall", "-o", str(staged),
+           *(str(C_DIR / name) for name in RUNNER_SOURCES)]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         raise BuildError(f"compiling the stepping loop failed ({' '.join(cmd)}):\n{proc.stderr}")

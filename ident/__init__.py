@@ -5,8 +5,9 @@ Public API (``from ident import ...``):
 - the model: ``DriveParams`` (SI drive parameters, the paper's non-dimensional groups K*, J_l*, f_l*, the nominal
   drive), ``Plant`` (the HarmonicDrive FMU, FMI 2.0 / 3.0 co-simulation with exact stick-slip, driven through
   fmpy);
-- the protocols: ``ImpulseController``, ``LinearPD`` (the paper's two controllers, speaking to a ``Plant``),
-  ``impulse_resolution``, ``linear_resolution``, ``impulse_experiment`` and ``friction_sweep``;
+- the protocols: ``ImpulseController``, ``LinearPD`` (the paper's two controllers, speaking to a ``Plant``, for
+  loops you write), ``impulse_resolution``, ``linear_resolution``, ``impulse_experiment`` and ``friction_sweep``
+  (their inner loops compiled over the FMU's functions by default, ``loop="python"`` for the controllers above);
 - fitting: ``read_log`` / ``write_log`` (``DriveLog``), ``identify`` (K*, J_l*, f_l* of a two-inertia log, or the
   rigid model), ``predict`` (resolution of a fitted drive with an interval);
 - diagnosis: ``diagnose`` (which effects the base model misses).

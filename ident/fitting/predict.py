@@ -61,7 +61,8 @@ def predict(fit: TwoInertiaFit, *, n_draws: int = 20, n_pulses: int = 1000, n_st
     from ..protocols.batch import run_batch
 
     results = run_batch(_resolutions, [(p, n_pulses, n_steps) for p in drives], scheduler=scheduler,
-                        workers=workers if n_draws else 0, progress=progress, desc="resolution draws")
+                        workers=workers if n_draws else 0, progress=progress, desc="resolution draws",
+                        threads=True)  # the protocols' compiled loops release the GIL
     table = pd.DataFrame([{**dict(zip(NAMES, np.exp(t))), "impulse_um": r[0] * 1e6, "linear_um": r[1] * 1e6,
                            "counts": r[2]} for t, r in zip(thetas, results)])
     draws = table.iloc[1:] if n_draws else table

@@ -12,7 +12,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, NamedTuple, Sequence
+from typing import Any, Iterable, NamedTuple, NoReturn, Sequence
 
 import numpy as np
 import pandas as pd
@@ -168,6 +168,12 @@ class Plant:
         detail = self._messages[-1] if self._messages else "no message from the FMU"
         self._messages.clear()
         raise PlantError(f"{what} failed: {detail}")
+
+    def raise_fmu_error(self, what: str) -> NoReturn:
+        """Raise ``PlantError("<what> failed: <the FMU's last log message>")``, as ``step`` does when the FMU refuses
+        a call: for loops below ``Plant`` (over ``fmi_functions``) that must report a refusal in the same words."""
+        self._raise(what)
+        raise AssertionError("unreachable")  # pragma: no cover
 
     # -- fast per-step path -----------------------------------------------------------------------------------
     def _bind_fast_path(self) -> None:

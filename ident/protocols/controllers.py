@@ -7,6 +7,10 @@
 Both are exact with respect to the plant: the FMU locates every stick-slip event inside a communication step, so
 the state at a communication point does not depend on the step size. The impulse controller therefore waits for
 rest with large steps; the PD controller steps at its own sampling period (its output changes only there).
+
+These are the controllers for loops you write around a ``Plant``. The protocols (``ident.protocols.resolution``) run
+the same ``pulse`` / ``move`` loops compiled by default (``ident.protocols.compiled``, bit for bit the same results);
+``loop="python"`` makes them use the classes here.
 """
 from __future__ import annotations
 

@@ -8,6 +8,11 @@
 
 Results are dataclasses with ``.to_frame()`` (pandas, one row per pulse / step), ``.summary()`` and ``.plot(path)``.
 All lengths are metres at the arm tip; amplitudes are non-dimensional (tau* = T_m / f_m).
+
+The inner loops (a pulse then rest, N pulses, the median test; the PD until final rest, the set-point steps) run in
+compiled code over the FMU's own functions by default (``loop="compiled"``, ``ident.protocols.compiled``), ~10x
+faster; ``loop="python"`` runs the same protocol through the Python controllers ``ImpulseController`` /
+``LinearPD`` and ``Plant.step``. Both give the same increments, bit for bit.
 """
 from __future__ import annotations
 
@@ -25,7 +30,10 @@ from ..common.checks import number, whole
 from ..common.plotting import figure, save
 from ..model.params import DriveParams
 from ..model.plant import Plant
+from . import compiled
+from .compiled import check_loop
 from .controllers import ImpulseController, LinearPD, SettleError
+from .pool import pooled_plant
 
 _ZERO_STATE = dict(q_m_start=0.0, q_l_start=0.0, v_m_start=0.0, v_l_start=0.0)
 
@@ -40,8 +48,8 @@ class NoConsistentStep(RuntimeError):
 
 @contextmanager
 def _plant(plant_or_params: Plant | DriveParams | None, fmi_version: int) -> Iterator[Plant]:
-    """A Plant: the one given, or a new one (closed afterwards) for the given drive (nominal if None); its drive
-    checked for what the protocols need (``require_rest``)."""
+    """A Plant: the one given, or this thread's pooled one (``ident.protocols.pool``) reset to the given drive
+    (nominal if None); its drive checked for what the protocols need (``require_rest``)."""
     if isinstance(plant_or_params, Plant):
         require_rest(plant_or_params.params)
         yield plant_or_params
@@ -50,12 +58,10 @@ def _plant(plant_or_params: Plant | DriveParams | None, fmi_version: int) -> Ite
         raise ValueError(f"expected a DriveParams or a Plant, got {type(plant_or_params).__name__}")
     if fmi_version not in (2, 3):
         raise ValueError(f"fmi_version = {fmi_version!r}: use 2 or 3")
-    require_rest(plant_or_params or DriveParams())
-    plant = Plant(plant_or_params, fmi_version=fmi_version)
-    try:
+    params = plant_or_params or DriveParams()
+    require_rest(params)
+    with pooled_plant(params, fmi_version) as plant:  # this thread's plant, reset to the drive
         yield plant
-    finally:
-        plant.close()
 
 
 def require_rest(params: DriveParams) -> None:
@@ -119,23 +125,26 @@ def plot_increments(increments_m: np.ndarray, path: str | Path, title: str, xlab
 
 # -- impulse protocol ---------------------------------------------------------------------------------------
 def impulse_experiment(plant_or_params: Plant | DriveParams | None, amplitude_star: float, n_pulses: int,
-                       width_s: float = 1e-3, *, fmi_version: int = 2) -> np.ndarray:
+                       width_s: float = 1e-3, *, fmi_version: int = 2, loop: str = "compiled") -> np.ndarray:
     """Arm increments [m] of ``n_pulses`` pulses tau* = ``amplitude_star`` for ``width_s``, each followed by rest.
 
     Fresh from rest with zero deflection (a given Plant is reset, keeping its parameters); the state carries over
-    between pulses.
+    between pulses. ``loop``: "compiled" (C over the FMU's functions) or "python" (``ImpulseController.pulse``).
     """
     amplitude_star = number("amplitude_star", amplitude_star)
     n_pulses = whole("n_pulses", n_pulses, 1)
     width_s = number("width_s", width_s, positive=True)
+    check_loop(loop)
     ctrl = ImpulseController(amplitude_star, width_s)
     with _plant(plant_or_params, fmi_version) as plant:
         _fresh(plant)
+        if loop == "compiled":
+            return compiled.pulses(plant, ctrl, n_pulses)[0]
         return np.array([ctrl.pulse(plant) for _ in range(n_pulses)])
 
 
 def _median_exceeds(plant: Plant, amplitude_star: float, n_pulses: int, eps1_m: float,
-                    width_s: float) -> tuple[bool, int]:
+                    width_s: float, loop: str = "compiled") -> tuple[bool, int]:
     """Is the median increment of a fresh N-pulse experiment > eps1? Stops as soon as that is decided.
 
     Decided early once more than N/2 increments are > eps1 (then both middle order statistics are, so the median
@@ -144,6 +153,9 @@ def _median_exceeds(plant: Plant, amplitude_star: float, n_pulses: int, eps1_m: 
     """
     ctrl = ImpulseController(amplitude_star, width_s)
     _fresh(plant)
+    if loop == "compiled":
+        incs, decision = compiled.pulses(plant, ctrl, n_pulses, eps1_m)
+        return (bool(np.median(incs) > eps1_m) if decision is None else decision), len(incs)
     half = n_pulses / 2
     above = below = 0
     incs = []
@@ -198,13 +210,13 @@ class ImpulseResolution(IncrementStats):
 
 def find_threshold(plant: Plant, n_pulses: int = 1000, eps1_m: float = 0.1e-6, tol_star: float = 1e-4,
                    width_s: float = 1e-3, coarse_step_star: float = 0.05, max_amplitude_star: float = 20.0,
-                   verify_below: int = 1) -> tuple[float, list[tuple[float, bool, int]]]:
+                   verify_below: int = 1, *, loop: str = "compiled") -> tuple[float, list[tuple[float, bool, int]]]:
     """First amplitude of the fine ramp A_i = i tol_star whose N-pulse median increment exceeds eps1.
 
     A coarse ramp (every ``coarse_step_star``, from 0) brackets the first pass, bisection on the fine grid narrows
     it to (fail at A - tol, pass at A). Then the ``verify_below`` fine amplitudes just below A are checked to fail
     (the one at A - tol is already known); if one passes (non-monotonic median), the search continues below it.
-    Returns (A_th, list of median tests (amplitude, passed, pulses run)).
+    Returns (A_th, list of median tests (amplitude, passed, pulses run)). ``loop``: as in ``impulse_experiment``.
     """
     n_pulses = whole("n_pulses", n_pulses, 1)
     eps1_m = number("eps1_m", eps1_m, positive=True)
@@ -213,6 +225,7 @@ def find_threshold(plant: Plant, n_pulses: int = 1000, eps1_m: float = 0.1e-6, t
     coarse_step_star = number("coarse_step_star", coarse_step_star, positive=True)
     max_amplitude_star = number("max_amplitude_star", max_amplitude_star, positive=True)
     verify_below = whole("verify_below", verify_below, 1)
+    check_loop(loop)
     step = max(1, round(coarse_step_star / tol_star))
     i_max = math.floor(max_amplitude_star / tol_star + 1e-9)
     cache: dict[int, bool] = {}
@@ -221,7 +234,7 @@ def find_threshold(plant: Plant, n_pulses: int = 1000, eps1_m: float = 0.1e-6, t
     def passes(i: int) -> bool:
         if i not in cache:
             a = round(i * tol_star, 12)
-            ok, used = _median_exceeds(plant, a, n_pulses, eps1_m, width_s)
+            ok, used = _median_exceeds(plant, a, n_pulses, eps1_m, width_s, loop)
             cache[i] = ok
             tests.append((a, ok, used))
         return cache[i]
@@ -252,19 +265,22 @@ def find_threshold(plant: Plant, n_pulses: int = 1000, eps1_m: float = 0.1e-6, t
 def impulse_resolution(plant_or_params: Plant | DriveParams | None = None, n_pulses: int = 1000,
                        eps1_m: float = 0.1e-6, eps2: float = 0.01, tol_star: float = 1e-4, width_s: float = 1e-3,
                        *, coarse_step_star: float = 0.05, max_amplitude_star: float = 20.0, verify_below: int = 1,
-                       fmi_version: int = 2) -> ImpulseResolution:
-    """The impulse protocol: threshold search, A_op = A_th (1 + eps2), a fresh N-pulse experiment at A_op."""
+                       fmi_version: int = 2, loop: str = "compiled") -> ImpulseResolution:
+    """The impulse protocol: threshold search, A_op = A_th (1 + eps2), a fresh N-pulse experiment at A_op.
+    ``loop``: "compiled" (default, C over the FMU's functions) or "python" (``ImpulseController`` through
+    ``Plant.step``); the results are the same bit for bit."""
     n_pulses = whole("n_pulses", n_pulses, 1)
     eps1_m = number("eps1_m", eps1_m, positive=True)
     eps2 = number("eps2", eps2, positive=True)
     tol_star = number("tol_star", tol_star, positive=True)
     width_s = number("width_s", width_s, positive=True)
+    check_loop(loop)
     t0 = time.perf_counter()
     with _plant(plant_or_params, fmi_version) as plant:
         a_th, tests = find_threshold(plant, n_pulses, eps1_m, tol_star, width_s, coarse_step_star,
-                                     max_amplitude_star, verify_below)
+                                     max_amplitude_star, verify_below, loop=loop)
         a_op = a_th * (1.0 + eps2)
-        incs = impulse_experiment(plant, a_op, n_pulses, width_s)
+        incs = impulse_experiment(plant, a_op, n_pulses, width_s, loop=loop)
         params = plant.params
     return ImpulseResolution(params, a_th, a_op, incs, n_pulses, eps1_m, eps2, tol_star, width_s, tests,
                              time.perf_counter() - t0)
@@ -303,13 +319,19 @@ class LinearResolution(IncrementStats):
 
 
 def linear_steps(plant: Plant, counts: int, n_steps: int, warmup: int = 20, *, eps1_m: float | None = None,
-                 controller: LinearPD | None = None, max_settle_s: float = 60.0) -> np.ndarray:
+                 controller: LinearPD | None = None, max_settle_s: float = 60.0, loop: str = "compiled") -> np.ndarray:
     """Fresh from rest with zero deflection: ``warmup`` + ``n_steps`` PD set-point steps of ``counts``; returns
     the increments [m] of the measured steps. With ``eps1_m``, stops at the first measured step that moves the
-    arm by eps1 or less (that k is then known to be inconsistent); the returned array ends with that step."""
+    arm by eps1 or less (that k is then known to be inconsistent); the returned array ends with that step.
+
+    ``loop="compiled"`` runs ``LinearPD.move`` in C over the FMU's functions (bit for bit the same); a subclass of
+    ``LinearPD`` (its own ``control``) always runs in Python."""
     counts = whole("counts", counts, 1)
+    check_loop(loop)
     pd_ = controller if controller is not None else LinearPD()
     _fresh(plant)
+    if loop == "compiled" and type(pd_) is LinearPD:
+        return compiled.pd_steps(plant, pd_, counts, n_steps, warmup, eps1_m=eps1_m, max_settle_s=max_settle_s)
     pd_.reset(plant.params, plant.sample())
     for _ in range(warmup):
         pd_.move(plant, counts, max_time_s=max_settle_s)
@@ -325,20 +347,23 @@ def linear_steps(plant: Plant, counts: int, n_steps: int, warmup: int = 20, *, e
 def linear_resolution(plant_or_params: Plant | DriveParams | None = None, n_steps: int = 1000, warmup: int = 20,
                       eps1_m: float = 0.1e-6, max_counts: int = 50, *, Kp_star: float = 200.0,
                       Kd_star: float = 19.2, rate_hz: float = 1000.0, saturation_star: float = 20.0,
-                      max_settle_s: float = 60.0, fmi_version: int = 2) -> LinearResolution:
+                      max_settle_s: float = 60.0, fmi_version: int = 2, loop: str = "compiled") -> LinearResolution:
     """The linear protocol: k = 1, 2, ... counts, each a fresh run (warm-up then ``n_steps`` measured steps),
-    until every measured step moves the arm by more than eps1. A k is abandoned at its first failing step."""
+    until every measured step moves the arm by more than eps1. A k is abandoned at its first failing step.
+    ``loop``: "compiled" (default, C over the FMU's functions) or "python" (``LinearPD.move`` through
+    ``Plant.step``); the results are the same bit for bit."""
     n_steps = whole("n_steps", n_steps, 1)
     warmup = whole("warmup", warmup, 0)
     eps1_m = number("eps1_m", eps1_m, positive=True)
     max_counts = whole("max_counts", max_counts, 1)
+    check_loop(loop)
     gains = dict(Kp_star=Kp_star, Kd_star=Kd_star, rate_hz=rate_hz, saturation_star=saturation_star)
     t0 = time.perf_counter()
     tried: list[dict[str, Any]] = []
     with _plant(plant_or_params, fmi_version) as plant:
         for k in range(1, max_counts + 1):
             incs = linear_steps(plant, k, n_steps, warmup, eps1_m=eps1_m, controller=LinearPD(**gains),
-                                max_settle_s=max_settle_s)
+                                max_settle_s=max_settle_s, loop=loop)
             ok = len(incs) == n_steps and bool(np.all(incs > eps1_m))
             tried.append(dict(counts=k, steps_run=len(incs), consistent=ok,
                               failing_increment_m=None if ok else float(incs[-1])))

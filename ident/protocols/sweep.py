@@ -103,10 +103,12 @@ def friction_sweep(params: DriveParams | None = None, levels: int | Sequence[flo
                    **protocol: Any) -> FrictionSweep:
     """The impulse protocol at each load-friction level (f_l* = f_l/f_m), other parameters from ``params``.
 
-    Levels run in parallel on Dask (``ident.protocols.batch.run_batch``: local worker processes by default, the
-    cluster at ``scheduler`` if given, serial with ``workers=0``); the results do not depend on where they ran.
+    Levels run in parallel on Dask (``ident.protocols.batch.run_batch``: with the compiled protocol loops, the
+    default, threads of this process; with ``loop="python"``, local worker processes; the cluster at ``scheduler``
+    if given; serial with ``workers=0``); the results do not depend on where they ran.
     """
     from .batch import run_batch
+    from .compiled import check_loop
 
     base = params or DriveParams()
     f = friction_levels(levels) if isinstance(levels, (int, np.integer)) else np.asarray(levels, dtype=float)
@@ -114,6 +116,7 @@ def friction_sweep(params: DriveParams | None = None, levels: int | Sequence[flo
         raise ValueError(f"friction levels must be finite numbers >= 0, got {levels!r}")
     n_pulses = whole("n_pulses", n_pulses, 1)
     tasks = [(base.with_values(f_l_star=float(x)), n_pulses, protocol) for x in f]
+    threads = check_loop(protocol.get("loop", "compiled")) == "compiled"
     results = run_batch(_impulse_task, tasks, scheduler=scheduler, workers=workers, progress=progress,
-                        desc="friction levels")
+                        desc="friction levels", threads=threads)
     return FrictionSweep(f, results)

@@ -302,6 +302,7 @@ def effects_sweep(cases: Sequence[EffectCase] | None = None, levels: int | Seque
     ``effect_cases(base)``). One Dask task per case and level (``run_batch``; ``workers=0``: serial in this
     process); results do not depend on where they ran."""
     from ..protocols.batch import run_batch
+    from ..protocols.compiled import check_loop
 
     base = base or DriveParams()
     cases = list((EFFECT_CASES if base == DriveParams() else effect_cases(base)) if cases is None else cases)
@@ -316,8 +317,9 @@ def effects_sweep(cases: Sequence[EffectCase] | None = None, levels: int | Seque
     order = sorted(((j, i) for i in range(len(cases)) for j in range(f.size)), key=lambda ji: (f[ji[0]], ji[1]))
     tasks = [(cases[i], base, float(f[j]), n_pulses, protocol) for j, i in order]
     t0 = time.perf_counter()
+    threads = check_loop(protocol.get("loop", "compiled")) == "compiled"   # compiled loops: threads, see run_batch
     out = run_batch(_case_task, tasks, scheduler=scheduler, workers=workers, progress=progress,
-                    desc="effect cases x levels")
+                    desc="effect cases x levels", threads=threads)
     results: dict[str, list[Any]] = {c.name: [None] * f.size for c in cases}
     for (j, i), r in zip(order, out):
         results[cases[i].name][j] = r

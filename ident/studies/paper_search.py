@@ -19,7 +19,8 @@ Design (few protocol runs; deterministic for a seed; the budget counts evaluatio
 4. **confirm**: the best screened Pareto points of distinct effect sets, and the unchanged drive, with the full
    protocol (25 levels, N = 1000, 1000 PD steps). The answer is the Pareto set of the confirmed candidates.
 
-Everything runs on Dask (``ident.protocols.batch.batch_session``; one task per candidate and level).
+Everything runs on Dask (``ident.protocols.batch.batch_session``; one task per candidate and level): locally on
+threads of this process (the protocols' compiled loops release the GIL), or on the cluster at ``scheduler``.
 """
 from __future__ import annotations
 
@@ -138,14 +139,14 @@ class _Task:
 def _run_task(task: _Task) -> tuple[Any, ...]:
     """(increments µm, A_th, CPU s) of an impulse protocol, or (resolution µm, counts, CPU s) of a linear one, or
     ("error", text, 0): a drive the protocol cannot measure (no threshold, no consistent step, the FMU refusing)
-    scores as failed. The CPU time (of the process running the task) is reported, never used."""
-    cpu0 = time.process_time()
+    scores as failed. The CPU time (of the thread running the task) is reported, never used."""
+    cpu0 = time.thread_time()
     try:
         if task.kind == "impulse":
             r = impulse_resolution(task.params, task.n)
-            return r.increments_m * 1e6, r.threshold_amplitude, time.process_time() - cpu0
+            return r.increments_m * 1e6, r.threshold_amplitude, time.thread_time() - cpu0
         lin = linear_resolution(task.params, n_steps=task.n)
-        return lin.resolution_m * 1e6, lin.counts, time.process_time() - cpu0
+        return lin.resolution_m * 1e6, lin.counts, time.thread_time() - cpu0
     except (ThresholdNotFound, NoConsistentStep, PlantError) as exc:
         return "error", f"{task.kind} protocol at f_l* = {task.params.f_l_star:.4g}: {type(exc).__name__}: {exc}", 0.0
 
@@ -449,7 +450,8 @@ def search_paper(base: DriveParams | None = None, *, budget: int = DEFAULT_BUDGE
     confirm = whole("confirm", confirm, 0)
     t0 = time.perf_counter()
     stage_s: dict[str, float] = {}
-    with batch_session(scheduler=scheduler, workers=workers) as run:
+    # the protocols' compiled loops release the GIL: locally the batches run on threads of this process
+    with batch_session(scheduler=scheduler, workers=workers, threads=True) as run:
         def ev(cands: list[Candidate], fid: Fidelity, stage: str) -> list[Evaluation]:
             t = time.perf_counter()
             out = evaluate(cands, fid, run, stage=stage, progress=progress)
