@@ -143,9 +143,10 @@ def test_grid_search_finds_the_brute_force_best() -> None:
     best = search.pareto()[0]
     assert (best.candidate.label, best.candidate.u) == truth[0][1:]
     assert (-best.n_met, float(np.sum(best.misfits))) == pytest.approx(truth[0][0][:2])
-    # the confirmed set holds the unchanged drive once and the screened best of distinct effect sets
-    labels = [e.candidate.label for e in search.confirmed()]
-    assert labels.count("drive only") == 1 and len(set(labels)) == len(labels)
+    # the confirmed set holds the unchanged drive once, and every point once
+    points = [(e.candidate.effects, e.candidate.u) for e in search.confirmed()]
+    assert [e.candidate.u for e in search.confirmed() if not e.candidate.effects] == [(0.5, 0.5)]
+    assert len(set(points)) == len(points) == 3
 
 
 def test_search_is_deterministic_for_a_seed_and_spends_its_budget() -> None:
@@ -157,7 +158,11 @@ def test_search_is_deterministic_for_a_seed_and_spends_its_budget() -> None:
     assert [e.candidate.u for e in a.screened()] != [e.candidate.u for e in c.screened()]
     assert len(a.screened()) == 8 and a.plan == ps.plan(8, 2)
     stages = [e.stage for e in a.evaluations]
-    assert stages.count("screen-single") == 6 and stages.count("screen-pair") == 2 and stages.count("confirm") == 2
+    assert stages.count("screen-single") == 6 and stages.count("screen-pair") == 2
+    assert stages.count("recheck") == ps.RECHECK_FACTOR * 1 and stages.count("confirm") == 2
+    # the rechecked and confirmed points are screened points (the shortlists pick, they do not invent)
+    screened = {(e.candidate.effects, e.candidate.u) for e in a.screened()}
+    assert all((e.candidate.effects, e.candidate.u) in screened for e in a.rechecked())
 
 
 def test_plan_splits_the_budget() -> None:

@@ -106,15 +106,15 @@ def _smallest_torque(f_m: float, f_l_star_min: float) -> float:
 def effect_ranges(base: DriveParams | None = None, f_l_star_min: float = 0.01) -> dict[str, EffectRange]:
     """The plausible ranges on drive ``base`` (nominal by default); ``f_l_star_min`` is the sweep's lowest level."""
     p = base or DriveParams()
-    h_rows = {size: cubic_hardening(*row) for size, row in CHA_STIFFNESS.items()}
-    h_size = max(h_rows, key=h_rows.get)
+    return {e.effect: e for e in (*_friction_ranges(p), *_gear_ranges(p, f_l_star_min))}
+
+
+def _friction_ranges(p: DriveParams) -> tuple[EffectRange, ...]:
+    """Viscous (uncited), Stribeck (LuGre paper) and asymmetric friction (EMPS)."""
     a_offset = abs(PAPER["offset"]) / PAPER["Fc"]
     a_fit = abs(PAPER_ASYM["Fc_pos"] - PAPER_ASYM["Fc_neg"]) / (PAPER_ASYM["Fc_pos"] + PAPER_ASYM["Fc_neg"])
-    h_min = _smallest_torque(p.f_m, f_l_star_min)
-    w_min_arcmin = 2 * h_min / (p.K_s * (1 + DRIVE_SPAN)) / ARCMIN
     vs_hi, vs_lo = LUGRE_VS_M_PER_S / (p.arm_length / CONTACT_RADIUS_SPAN), LUGRE_VS_M_PER_S / p.arm_length
-    cha = "Harmonic Drive AG, CHA manual 1018854 08/2018 V03"
-    return {e.effect: e for e in (
+    return (
         EffectRange("viscous_motor", (Knob("zeta_motor", 0.0, VISCOUS_ZETA_MAX, "1"),),
                     lambda k, d: {"b_m": 2 * k["zeta_motor"] * math.sqrt(d.r**2 * d.K_s * d.J_m)},
                     "none found", "-",
@@ -143,11 +143,22 @@ def effect_ranges(base: DriveParams | None = None, f_l_star_min: float = 0.01) -
                     f"|a| up to |offset| / Fc = {a_offset:.3f} (a constant offset shifts the static band like an "
                     f"asymmetry; the direct asymmetric fit gives {a_fit:.3f}); a real drive, but a ball-screw axis, "
                     "not a harmonic drive"),
+    )
+
+
+def _gear_ranges(p: DriveParams, f_l_star_min: float) -> tuple[EffectRange, ...]:
+    """Hardening, hysteresis and kinematic error from the Harmonic Drive CHA catalogue."""
+    h_rows = {size: cubic_hardening(*row) for size, row in CHA_STIFFNESS.items()}
+    h_size = max(h_rows, key=h_rows.get)
+    h_min = _smallest_torque(p.f_m, f_l_star_min)
+    w_min_arcmin = 2 * h_min / (p.K_s * (1 + DRIVE_SPAN)) / ARCMIN
+    cha = "Harmonic Drive AG, CHA manual 1018854 08/2018 V03"
+    ratios = ", ".join(f"{r[4] / r[2]:.2f}" for r in CHA_STIFFNESS.values())
+    return (
         EffectRange("hardening", (Knob("hardening", 0.0, h_rows[h_size], "1/rad2"),),
                     lambda k, d: {"hardening": k["hardening"]},
                     f"{cha}, tables 54.3/54.4 (ratio > 50)",
-                    "K1 ... K3 and T1, T2 per size; K3/K1 = " + ", ".join(
-                        f"{r[4] / r[2]:.2f}" for r in CHA_STIFFNESS.values()) + " (CHA-14A ... 58A)",
+                    f"K1 ... K3 and T1, T2 per size; K3/K1 = {ratios} (CHA-14A ... 58A)",
                     f"a cubic K_s (d + h d³) whose tangent stiffness rises from K1 to K3 at the catalogue's twist at "
                     f"T2: h = (K3/K1 - 1) / (3 phi2²), largest for {h_size}: {h_rows[h_size]:.3g} /rad²"),
         EffectRange("hysteresis", (Knob("hysteresis_loss", w_min_arcmin, CHA_HYSTERESIS_LOSS_ARCMIN, "arcmin",
@@ -171,7 +182,7 @@ def effect_ranges(base: DriveParams | None = None, f_l_star_min: float = 0.01) -
                     "output turn",
                     "the twice-per-turn error A sin(2 q_m + phi) is at most half the peak-to-peak accuracy: A up to "
                     f"{0.5 * CHA_TRANSMISSION_ACCURACY_ARCMIN * 60:g} arcsec, any phase"),
-    )}
+    )
 
 
 def drive_knobs(span: float = DRIVE_SPAN) -> tuple[Knob, ...]:

@@ -16,7 +16,9 @@ Design (few protocol runs; deterministic for a seed; the budget counts evaluatio
    beyond what the drive alone reached (``promise``), ``n2`` points each, as many pairs as the budget allows;
 3. **refine** (coarse to fine): Latin hypercubes in boxes around the best screened Pareto points, the box halving
    every round, until the screening budget is spent;
-4. **confirm**: the best screened Pareto points of distinct effect sets, and the unchanged drive, with the full
+4. **recheck**: a shortlist (``shortlist``: the best screened point, the best on each claim, then the rest of the
+   ranked Pareto set; ``2 x confirm`` long) at every level of the full protocol with the screening's N;
+5. **confirm**: the shortlist of the rechecked points (``confirm`` long) and the unchanged drive with the full
    protocol (25 levels, N = 1000, 1000 PD steps). The answer is the Pareto set of the confirmed candidates.
 
 Everything runs on Dask (``ident.protocols.batch.batch_session``; one task per candidate and level): locally on
@@ -42,6 +44,7 @@ from .paper_claims import CLAIMS, F_L_EXPERIMENT, F_L_IMPULSE, ClaimInputs, Clai
 
 DEFAULT_BUDGET = 96      # screening evaluations (see bench/paper_effects.py for what fits in 10 min on 2 cores)
 DEFAULT_CONFIRM = 3      # candidates confirmed with the full protocol (besides the unchanged drive)
+RECHECK_FACTOR = 2       # the shortlist re-evaluated at every level (screening N) is this times ``confirm`` long
 SINGLE_SHARE, PAIR_SHARE = 0.4, 0.3  # of the budget; the rest refines
 REFINE_CENTERS, REFINE_POINTS, REFINE_HALF_WIDTH = 3, 4, 0.25
 
@@ -69,6 +72,13 @@ class Fidelity:
 # makes it the most expensive level, and the line's R² is set by the spread of the higher levels)
 SCREEN = Fidelity("screen", tuple(float(f) for f in friction_levels(25)[4::4]), 100, 100)
 FULL = Fidelity("full", tuple(float(f) for f in friction_levels(25)), 1000, 1000)
+
+
+def recheck_fidelity(screen: Fidelity, full: Fidelity) -> Fidelity:
+    """Every level of the full protocol with the screening's N and PD steps. Why: the max increment is set by the
+    first pulses (the start-up transient), so N = 100 gives nearly the max of N = 1000, but the max is jagged in
+    f_l*, so the R² of its line depends on which levels are sampled: a few levels can show a line that 25 do not."""
+    return Fidelity("recheck", full.levels, screen.n_pulses, screen.n_steps)
 
 
 @dataclass(frozen=True)
@@ -337,7 +347,12 @@ class PaperSearch:
         return self.space.ranges
 
     def screened(self) -> list[Evaluation]:
-        return [e for e in self.evaluations if e.fidelity.name == self.screen.name and e.stage != "confirm"]
+        """The screening stages' evaluations (screening fidelity)."""
+        return [e for e in self.evaluations if e.stage not in ("recheck", "confirm")]
+
+    def rechecked(self) -> list[Evaluation]:
+        """The shortlist re-evaluated at every level with the screening's N."""
+        return [e for e in self.evaluations if e.stage == "recheck"]
 
     def confirmed(self) -> list[Evaluation]:
         return [e for e in self.evaluations if e.stage == "confirm"]
@@ -362,10 +377,12 @@ class PaperSearch:
         from .paper_claims import claims_table
 
         return {"claims": claims_table(), "pareto": [pareto_entry(e) for e in self.pareto()],
-                "evaluations": {"screen": len(self.screened()), "confirm": len(self.confirmed()),
+                "evaluations": {"screen": len(self.screened()), "recheck": len(self.rechecked()),
+                                "confirm": len(self.confirmed()),
                                 "plan": vars(self.plan), "seed": self.seed},
                 "fidelities": {f.name: dict(levels=list(f.levels), n_pulses=f.n_pulses, n_steps=f.n_steps,
-                                            experiment_level=F_L_EXPERIMENT) for f in (self.screen, self.full)}}
+                                            experiment_level=F_L_EXPERIMENT)
+                               for f in (self.screen, recheck_fidelity(self.screen, self.full), self.full)}}
 
 
 def _finite(x: float) -> float | None:
@@ -414,14 +431,21 @@ def _refine(evals: list[Evaluation], n: int, rnd: int, seed: int, space: Space) 
     return out
 
 
-def _to_confirm(screened: list[Evaluation], k: int, unchanged: Candidate) -> list[Candidate]:
-    """The ``k`` best screened Pareto points of distinct effect sets (the unchanged drive is confirmed anyway)."""
-    out, seen = [], set()
-    for ev in ranked_pareto(screened):
-        same = (ev.candidate.effects, ev.candidate.u) == (unchanged.effects, unchanged.u)
-        if ev.candidate.effects not in seen and not ev.error and not same:
-            seen.add(ev.candidate.effects)
-            out.append(ev.candidate)
+def shortlist(evals: Sequence[Evaluation], k: int, exclude: Sequence[Candidate] = ()) -> list[Candidate]:
+    """Up to ``k`` candidates worth a closer look: the best of the ranked Pareto set, then the best on each claim in
+    turn (smallest misfit, ties by rank), then the rest of the ranked Pareto set; each point once, failed
+    evaluations and the ``exclude``d points never."""
+    ok = [e for e in evals if not e.error]
+    if not ok or k <= 0:
+        return []
+    ranked = ranked_pareto(ok)
+    per_claim = [min(ok, key=lambda e, c=c: (e.claims[c.name].misfit, rank_key(e))) for c in CLAIMS]
+    out, seen = [], {(c.effects, c.u) for c in exclude}
+    for e in ranked[:1] + per_claim + ranked[1:]:
+        key = (e.candidate.effects, e.candidate.u)
+        if key not in seen:
+            seen.add(key)
+            out.append(e.candidate)
         if len(out) == k:
             break
     return out
@@ -459,7 +483,10 @@ def search_paper(base: DriveParams | None = None, *, budget: int = DEFAULT_BUDGE
             return out
 
         evals = ev(grid_cands, screen, "grid") if grid else _screen(space, the_plan, seed, ev, screen)
-        evals += ev([space.unchanged()] + _to_confirm(evals, confirm, space.unchanged()), full, "confirm")
+        unchanged = space.unchanged()
+        rechecked = ev(shortlist(evals, RECHECK_FACTOR * confirm, [unchanged]), recheck_fidelity(screen, full),
+                       "recheck")
+        evals += rechecked + ev([unchanged] + shortlist(rechecked, confirm, [unchanged]), full, "confirm")
     return PaperSearch(space, screen, full, the_plan, confirm, seed, evals, time.perf_counter() - t0, stage_s)
 
 
@@ -503,6 +530,6 @@ def _screen(space: Space, p: SearchPlan, seed: int, ev: Any, screen: Fidelity) -
     return evals
 
 
-__all__ = ["DEFAULT_BUDGET", "DEFAULT_CONFIRM", "FULL", "SCREEN", "Candidate", "Evaluation", "Fidelity",
+__all__ = ["DEFAULT_BUDGET", "DEFAULT_CONFIRM", "FULL", "RECHECK_FACTOR", "SCREEN", "Candidate", "Evaluation", "Fidelity",
            "PaperSearch", "SearchPlan", "Space", "evaluate", "pareto_entry", "pareto_front", "plan",
-           "promise", "rank_key", "ranked_pareto", "search_paper"]
+           "promise", "rank_key", "ranked_pareto", "recheck_fidelity", "search_paper", "shortlist"]

@@ -24,8 +24,8 @@ from ..common.output import staged_folder
 from ..common.plotting import figure, save
 from ..model.params import DriveParams
 from .paper_claims import BY_NAME, CLAIMS, F_L_EXPERIMENT, F_L_IMPULSE, HIST_BOUND_UM
-from .paper_search import DEFAULT_BUDGET, DEFAULT_CONFIRM, FULL, SCREEN, Evaluation, Fidelity, PaperSearch, \
-    search_paper
+from .paper_search import DEFAULT_BUDGET, DEFAULT_CONFIRM, FULL, RECHECK_FACTOR, SCREEN, Evaluation, Fidelity, \
+    PaperSearch, search_paper
 
 SHOWN = 3   # best confirmed drives drawn beside the unchanged one
 
@@ -57,79 +57,92 @@ def _mover(search: PaperSearch, claim: str) -> tuple[str, float] | None:
     return (best, gains[best]) if best is not None and gains[best] > 0 else None
 
 
+TIERS = ("confirmed", "rechecked", "screened")   # highest fidelity first
+
+
+def _tiers(search: PaperSearch) -> dict[str, list[Evaluation]]:
+    return {"confirmed": search.confirmed(), "rechecked": search.rechecked(), "screened": search.screened()}
+
+
 def reach(search: PaperSearch) -> dict[str, dict[str, Any]]:
-    """Per claim: the unchanged drive's value; the confirmed and screened evaluations that meet it; the minimal
-    effect sets among them (``needs``); the best value found (confirmed and screened) and the single effect that
-    moved it most (``mover``)."""
-    out = {}
-    conf, scr, ref = search.confirmed(), search.screened(), search.reference()
+    """Per claim: the unchanged drive's value; per tier (confirmed: full protocol; rechecked: every level, screening
+    N; screened) how many evaluations meet it, the best value and by which effects; the minimal effect sets among
+    those meeting it in the highest tier that has any (``needs``); the single effect that moved it most
+    (``mover``)."""
+    tiers, ref, out = _tiers(search), search.reference(), {}
     for c in CLAIMS:
-        met_c = [e for e in conf if not e.error and e.claims[c.name].met]
-        met_s = [e for e in scr if not e.error and e.claims[c.name].met]
-        bc, bs = _best(conf, c.name), _best(scr, c.name)
-        out[c.name] = dict(
-            reference=ref.claims[c.name].value, reference_met=bool(ref.claims[c.name].met),
-            confirmed=len(met_c), screened=len(met_s),
-            needs=[list(s) for s in _minimal([e.candidate.effects for e in (met_c or met_s)])],
-            needs_from="confirmed" if met_c else ("screened" if met_s else None),
-            best_confirmed=bc.claims[c.name].value if bc else math.nan,
-            best_confirmed_by=bc.candidate.label if bc else "",
-            best_screened=bs.claims[c.name].value if bs else math.nan,
-            best_screened_by=bs.candidate.label if bs else "",
-            mover=_mover(search, c.name))
-        out[c.name] = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-                       for k, v in out[c.name].items()}
+        r: dict[str, Any] = dict(reference=ref.claims[c.name].value, reference_met=bool(ref.claims[c.name].met))
+        for tier, evals in tiers.items():
+            met = [e for e in evals if not e.error and e.claims[c.name].met]
+            best = _best(evals, c.name)
+            r[tier] = dict(n=len(evals), met=len(met), best=best.claims[c.name].value if best else None,
+                           best_by=best.candidate.label if best else "",
+                           needs=[list(s) for s in _minimal([e.candidate.effects for e in met])])
+        r["needs_from"] = next((t for t in TIERS if r[t]["met"]), None)
+        r["mover"] = _mover(search, c.name)
+        out[c.name] = _clean(r)
     return out
 
 
-def _needs_words(r: dict[str, Any]) -> str:
-    if not r["needs"]:
+def _clean(x: Any) -> Any:
+    """Non-finite floats as None (valid JSON)."""
+    if isinstance(x, dict):
+        return {k: _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    return None if isinstance(x, float) and not math.isfinite(x) else x
+
+
+def _needs_words(needs: list[list[str]]) -> str:
+    if not needs:
         return "no evaluated set"
-    sets = ["the drive alone (its K*, J_l* in their range)" if not s else " + ".join(s) for s in r["needs"]]
-    return " or ".join(sets)
+    return " or ".join("the drive alone (its K*, J_l* in their range)" if not s else " + ".join(s) for s in needs)
 
 
-def _claim_sentence(name: str, r: dict[str, Any], n_screen: int, n_conf: int) -> str:
+def _fmt(v: float | None) -> str:
+    return f"{v:.3g}" if v is not None and math.isfinite(v) else "n/a"
+
+
+def _claim_sentence(name: str, r: dict[str, Any]) -> str:
     c = BY_NAME[name]
-    fmt = lambda v: f"{v:.3g}" if v is not None and math.isfinite(v) else "n/a"  # noqa: E731
-    head = (f"- **{name}** (paper: {c.quantity}, {c.met_if}): the unchanged drive gives "
-            f"{fmt(r['reference'])} ({'met' if r['reference_met'] else 'not met'}). ")
-    if r["confirmed"]:
-        body = (f"Met by {r['confirmed']} of the {n_conf} drives run with the full protocol; it needs at least "
-                f"{_needs_words(r)}.")
-    elif r["screened"]:
-        body = (f"Met by {r['screened']} of the {n_screen} screened drives (at the screening fidelity) but by none "
-                f"of the {n_conf} confirmed with the full protocol (best {fmt(r['best_confirmed'])}, "
-                f"{r['best_confirmed_by']}); at screening it needs at least {_needs_words(r)}.")
+    head = (f"- **{name}** (paper: {c.quantity}, {c.met_if}): the unchanged drive gives {_fmt(r['reference'])} "
+            f"({'met' if r['reference_met'] else 'not met'}). ")
+    counts = "; ".join(f"{r[t]['met']} of {r[t]['n']} {t} (best {_fmt(r[t]['best'])}, {r[t]['best_by'] or '-'})"
+                       for t in TIERS)
+    tier = r["needs_from"]
+    if tier is None:
+        body = f"**No plausible set reaches it**: met by {counts}."
     else:
-        body = (f"**No plausible set reaches it**: none of the {n_screen} screened and {n_conf} confirmed drives "
-                f"meets it; the closest is {fmt(r['best_screened'])} ({r['best_screened_by']}, screened) and "
-                f"{fmt(r['best_confirmed'])} ({r['best_confirmed_by']}, confirmed).")
+        caveat = "" if tier == "confirmed" else f" (only at the {tier} fidelity, not confirmed with the full protocol)"
+        body = f"Met by {counts}. It needs at least {_needs_words(r[tier]['needs'])}{caveat}."
     mover = r["mover"]
-    tail = (f" The effect that moves it most on its own is {mover[0]} (its best misfit {mover[1]:.3g} tolerance(s) "
-            "below the drive alone's)." if mover else " No single effect moves it beyond what the drive alone "
-            "reaches.")
+    tail = (f" The effect that moves it most on its own is {mover[0]} (its best screened misfit {mover[1]:.3g} "
+            "tolerance(s) below the drive alone's)." if mover else " No single effect moves it beyond what the drive "
+            "alone reaches.")
     return head + body + tail
 
 
 def _answer(search: PaperSearch, r: dict[str, dict[str, Any]]) -> str:
     pareto = search.pareto()
     best = pareto[0] if pareto else None
-    unreached = [n for n, v in r.items() if not v["confirmed"] and not v["screened"]]
+    unreached = [n for n, v in r.items() if v["needs_from"] is None]
+    unconfirmed = [n for n, v in r.items() if v["needs_from"] not in (None, "confirmed")]
     n_all = sum(1 for e in search.confirmed() if e.n_met == len(CLAIMS))
     lines = [f"{n_all} of the {len(search.confirmed())} drives confirmed with the full protocol reproduce all "
              f"{len(CLAIMS)} claims together."]
     if best is not None:
         met = [c.name for c in CLAIMS if best.claims[c.name].met]
         lines.append(f"The best ({best.candidate.label}) meets {len(met)}: {', '.join(met) or 'none'}.")
-    lines.append("Claims no plausible set reaches (neither screened nor confirmed): "
+    lines.append("Claims no plausible set reaches (no evaluation at any fidelity meets them): "
                  f"{', '.join(unreached) if unreached else 'none'}.")
+    if unconfirmed:
+        lines.append(f"Met only at a lower fidelity, not confirmed: {', '.join(unconfirmed)}.")
     return " ".join(lines)
 
 
 def _claims_md(r: dict[str, dict[str, Any]]) -> str:
     rows = [(c.name, f"\"{c.source}\" ({c.where})", c.quantity, f"{c.target:g}", f"{c.tolerance:g}", c.met_if,
-             c.basis, r[c.name]["reference"]) for c in CLAIMS]
+             c.basis, _fmt(r[c.name]["reference"])) for c in CLAIMS]
     return md_table((["claim", "paper", "quantity", "target", "tolerance", "met if", "how the number follows",
                       "unchanged drive"], rows))
 
@@ -173,8 +186,10 @@ def _design_md(search: PaperSearch) -> str:
                  f"and each of {len(search.ranges)} effects, {p.n2} for each of {p.n_pairs} pairs (ordered by how "
                  f"much their members moved the claims alone), {p.refine} in refinement rounds around the best "
                  "screened Pareto points")
-    return (f"Screening: {screening}; then {search.confirm} candidates of distinct effect sets and the unchanged "
-            f"drive with the full protocol. Evaluations per stage: {stages}. Screening fidelity: {len(s.levels)} levels "
+    return (f"Screening: {screening}. Then a shortlist of {RECHECK_FACTOR * search.confirm} (the best screened "
+            "point, the best on each claim, the rest of the ranked Pareto set) rechecked at every level with the "
+            f"screening's N, and the shortlist of those ({search.confirm}) and the unchanged drive with the full "
+            f"protocol. Evaluations per stage: {stages}. Screening fidelity: {len(s.levels)} levels "
             f"({', '.join(f'{x:.3g}' for x in s.levels)}), N = {s.n_pulses} pulses, {s.n_steps} PD steps; full: "
             f"{len(f.levels)} levels, N = {f.n_pulses}, {f.n_steps} PD steps; both also at f_l* = "
             f"{F_L_EXPERIMENT:g}. Wall time {search.elapsed_s:.0f} s (not used by any decision).")
@@ -221,8 +236,7 @@ def _shown(search: PaperSearch) -> list[Evaluation]:
 
 
 def report_md(search: PaperSearch, r: dict[str, dict[str, Any]]) -> str:
-    n_s, n_c = len(search.screened()), len(search.confirmed())
-    per_claim = "\n".join(_claim_sentence(c.name, r[c.name], n_s, n_c) for c in CLAIMS)
+    per_claim = "\n".join(_claim_sentence(c.name, r[c.name]) for c in CLAIMS)
     return f"""# The paper's claims together: a search of the effect library (hdrive)
 
 Which combinations of the library's effects, at magnitudes a real harmonic drive can have, reproduce the paper's
