@@ -76,6 +76,8 @@ def reach(search: PaperSearch) -> dict[str, dict[str, Any]]:
             met = [e for e in evals if not e.error and e.claims[c.name].met]
             best = _best(evals, c.name)
             r[tier] = dict(n=len(evals), met=len(met), best=best.claims[c.name].value if best else None,
+                           best_misfit=best.claims[c.name].misfit if best else None,
+                           best_details=dict(best.claims[c.name].details) if best else {},
                            best_by=best.candidate.label if best else "",
                            needs=[list(s) for s in _minimal([e.candidate.effects for e in met])])
         r["needs_from"] = next((t for t in TIERS if r[t]["met"]), None)
@@ -103,12 +105,22 @@ def _fmt(v: float | None) -> str:
     return f"{v:.3g}" if v is not None and math.isfinite(v) else "n/a"
 
 
+def _side(name: str, tier: dict[str, Any]) -> str:
+    """The side condition behind a value: the linear step's count, the avalanche's later increments."""
+    d = tier.get("best_details") or {}
+    if name == "linear_over_impulse" and "linear_counts" in d:
+        return f" at {d['linear_counts']:.0f} count(s), linear {_fmt(d.get('linear_um'))} µm"
+    if name == "avalanche" and "later_over_median" in d:
+        return f", later increments up to {_fmt(d['later_over_median'])}x the median"
+    return ""
+
+
 def _claim_sentence(name: str, r: dict[str, Any]) -> str:
     c = BY_NAME[name]
     head = (f"- **{name}** (paper: {c.quantity}, {c.met_if}): the unchanged drive gives {_fmt(r['reference'])} "
             f"({'met' if r['reference_met'] else 'not met'}). ")
-    counts = "; ".join(f"{r[t]['met']} of {r[t]['n']} {t} (best {_fmt(r[t]['best'])}, {r[t]['best_by'] or '-'})"
-                       for t in TIERS)
+    counts = "; ".join(f"{r[t]['met']} of {r[t]['n']} {t} (best {_fmt(r[t]['best'])}{_side(name, r[t])}, misfit "
+                       f"{_fmt(r[t]['best_misfit'])}, {r[t]['best_by'] or '-'})" for t in TIERS)
     tier = r["needs_from"]
     if tier is None:
         body = f"**No plausible set reaches it**: met by {counts}."
@@ -260,6 +272,11 @@ medians); 0 exactly when the claim is met.
 {_claims_md(r)}
 
 ## Plausible ranges (and their sources)
+
+Each effect is searched only inside the range its source allows (the source's own quantity, mapped onto the FMU's
+parameters as the last column says). The harmonic-drive papers that name these effects (Tuttle & Seering 1996,
+Taghirad & Belanger 1998, Dhaouadi et al. 2003, Ghorbel et al. 2001) give their forms; no magnitude is taken from
+them here, as their figures were not checked for this report.
 
 {_ranges_md(search)}
 
