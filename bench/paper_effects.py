@@ -8,6 +8,12 @@ defaults in at most ~10 minutes on 2 cores).
 
 Prints the figures and writes bench/results/paper_effects.json. ``python bench/paper_effects.py [--quick]``
 (``--quick``: only the per-case timings).
+
+``python bench/paper_effects.py --search [--budget N] [--confirm K] [--seed S]``: the search of
+``hdrive paper-effects --search`` (ident.studies.paper_search; target: the defaults in at most 10 minutes on 2 cores)
+on Dask with local worker processes: wall time per stage, task time, the machine's load average before and after
+(other work on the machine), the Pareto set and what each claim needs; writes bench/results/paper_search.json and
+the report beside it (bench/results/paper_search/).
 """
 from __future__ import annotations
 
@@ -66,5 +72,52 @@ def main(quick: bool = False) -> dict:
     return results
 
 
+def search_main(budget: int, confirm: int, seed: int) -> dict:
+    import shutil
+
+    from ident.studies.paper_search_report import reach, write_paper_search
+
+    out_dir = Path(__file__).resolve().parent / "results" / "paper_search"
+    load_before = os.getloadavg()
+    t0 = time.perf_counter()
+    search, report = write_paper_search(out_dir.with_name("paper_search.tmp"), budget=budget, confirm=confirm,
+                                        seed=seed, progress=True)
+    total = time.perf_counter() - t0
+    shutil.rmtree(out_dir, ignore_errors=True)
+    report.parent.rename(out_dir)
+    df = search.to_frame()
+    results = {
+        "machine": {"cores": os.cpu_count(), "python": platform.python_version(), "cpu": platform.machine()},
+        "load_average_before": load_before, "load_average_after": os.getloadavg(),
+        "search_s": total, "target_s": 600.0, "budget": budget, "confirm": confirm, "seed": seed,
+        "stage_s": search.stage_s, "evaluations_by_stage": df["stage"].value_counts().to_dict(),
+        "task_s_by_stage": df.groupby("stage")["task_s"].sum().to_dict(), "task_s_total": float(df["task_s"].sum()),
+        "failed": int((df["error"] != "").sum()), **search.to_dict(), "reach": reach(search),
+    }
+    print(f"search (budget {budget}, confirm {confirm}, seed {seed}): {total:.0f} s wall on Dask ({os.cpu_count()} "
+          f"local workers; target 600 s), {results['task_s_total']:.0f} s of task time; load average before "
+          f"{load_before[0]:.1f}, after {results['load_average_after'][0]:.1f}")
+    for stage, sec in search.stage_s.items():
+        print(f"  {stage:14s} {results['evaluations_by_stage'].get(stage, 0):4d} evaluations  {sec:6.0f} s wall  "
+              f"{results['task_s_by_stage'].get(stage, 0.0):7.0f} s task")
+    for i, e in enumerate(search.pareto(), 1):
+        print(f"  {i}. {e.candidate.label}: " + ", ".join(f"{k} {v.value:.3g}{'*' if v.met else ''}"
+                                                          for k, v in e.claims.items()))
+    out = Path(__file__).resolve().parent / "results" / "paper_search.json"
+    out.write_text(json.dumps(results, indent=2, default=float))
+    print(f"written {out} and {out_dir}")
+    return results
+
+
+def _option(name: str, default: int) -> int:
+    args = sys.argv[1:]
+    return int(args[args.index(name) + 1]) if name in args else default
+
+
 if __name__ == "__main__":
-    main(quick="--quick" in sys.argv[1:])
+    if "--search" in sys.argv[1:]:
+        from ident.studies.paper_search import DEFAULT_BUDGET, DEFAULT_CONFIRM
+
+        search_main(_option("--budget", DEFAULT_BUDGET), _option("--confirm", DEFAULT_CONFIRM), _option("--seed", 0))
+    else:
+        main(quick="--quick" in sys.argv[1:])

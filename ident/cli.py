@@ -20,6 +20,8 @@ from .model.params import DriveParams, ParameterError, parse_assignments
 from .protocols.controllers import SettleError
 from .protocols.resolution import NoConsistentStep, ThresholdNotFound
 
+DEFAULT_SEARCH_BUDGET = 96   # ident.studies.paper_search.DEFAULT_BUDGET (not imported: keeps `hdrive --help` light)
+
 
 DESCRIPTION = ("hdrive: resolution of a harmonic-drive joint with exact stick-slip friction, simulated by a real "
                "FMU. Every command takes --json (one JSON document on stdout, SI units named in the keys' suffixes); "
@@ -296,9 +298,12 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
 
 
 def cmd_paper_effects(args: argparse.Namespace) -> dict:
+    if args.search:
+        return cmd_paper_search(args)
     from .studies.paper_effects import write_paper_effects
 
-    sweep, report = write_paper_effects(args.out, levels=args.levels, n_pulses=args.pulses, workers=args.workers,
+    levels, pulses = args.levels or 13, args.pulses or 300
+    sweep, report = write_paper_effects(args.out, levels=levels, n_pulses=pulses, workers=args.workers,
                                         scheduler=args.scheduler, base=_params_from(args), progress=not args.json)
     summary = sweep.summary()
     if not args.json:
@@ -336,6 +341,40 @@ def cmd_design_experiment(args: argparse.Namespace) -> dict:
               + ", ".join(f"{k} {v:.2e}" for k, v in design.worst().items()))
         print(f"wrote {files['schedule.csv']} (time_s, motor_torque_Nm), {files['bounds.csv']}, {files['design.json']}")
     return {**out, "files": files}
+
+
+def cmd_paper_search(args: argparse.Namespace) -> dict:
+    """``paper-effects --search``: the Pareto search of the effect library for the paper's claims together."""
+    from .protocols.sweep import friction_levels
+    from .studies import paper_search as ps
+    from .studies.paper_search import FULL, Fidelity
+    from .studies.paper_search_report import reach, write_paper_search
+
+    levels = args.levels or len(FULL.levels)
+    if levels % 2 == 0:
+        raise ValueError(f"--levels = {levels}: with --search the levels f_l* = 10^(-2 + 2 i/(n - 1)) must include "
+                         "0.1 (the impulse claim's level), which needs an odd number of levels")
+    full = Fidelity("full", tuple(float(f) for f in friction_levels(levels)), args.pulses or FULL.n_pulses,
+                    args.steps or FULL.n_steps)
+    effects = [e.strip() for e in args.effects.split(",") if e.strip()] if args.effects is not None else None
+    if effects is not None:
+        from .studies.effect_ranges import effect_ranges
+
+        known = list(effect_ranges())
+        bad = [e for e in effects if e not in known]
+        if bad or not effects or len(set(effects)) != len(effects):
+            raise ValueError(f"--effects {args.effects!r}: give distinct names among {', '.join(known)}"
+                             + (f" (unknown: {', '.join(bad)})" if bad else ""))
+    search, report = write_paper_search(args.out, base=_params_from(args), budget=args.budget, confirm=args.confirm,
+                                        seed=args.seed, effects=effects, screen=ps.SCREEN, full=full,
+                                        workers=args.workers, scheduler=args.scheduler, progress=True)
+    out = {"report": str(report), **search.to_dict(), "reach": reach(search)}
+    if not args.json:
+        for i, e in enumerate(search.pareto(), 1):
+            verdicts = ", ".join(f"{k} {v.value:.3g} {'met' if v.met else 'not met'}" for k, v in e.claims.items())
+            print(f"{i}. {e.candidate.label}: {verdicts}")
+        print(f"wrote {report}")
+    return out
 
 
 def cmd_emps_report(args: argparse.Namespace) -> dict:
@@ -491,9 +530,23 @@ def _add_diagnose(sub: Any) -> None:
 def _add_paper_effects(sub: Any) -> None:
     p = sub.add_parser("paper-effects", help="the friction sweep with and without each effect of the library: which "
                                              "effects reproduce the paper's linear trend and avalanche")
-    p.add_argument("--out", required=True, help="output directory for paper_effects.md, CSVs and plot")
-    p.add_argument("--levels", type=int, default=13, help="friction levels from f_l* = 0.01 to 1 (default 13)")
-    p.add_argument("--pulses", type=int, default=300, help="pulses per impulse experiment N (default 300)")
+    p.add_argument("--out", required=True, help="output directory for paper_effects.md (paper_search.md with "
+                                                "--search), CSVs and plots")
+    p.add_argument("--levels", type=int, help="friction levels from f_l* = 0.01 to 1 (default 13; with --search: "
+                                              "of the full protocol that confirms the candidates, default 25)")
+    p.add_argument("--pulses", type=int, help="pulses per impulse experiment N (default 300; with --search: of the "
+                                              "full protocol, default 1000)")
+    p.add_argument("--search", action="store_true",
+                   help="search one and two effects at cited plausible magnitudes (and K*, J_l* within +-50 %%) for "
+                        "drives that reproduce the paper's claims together; Pareto set over the claims' misfits")
+    p.add_argument("--budget", type=int, default=DEFAULT_SEARCH_BUDGET,
+                   help=f"with --search: screening evaluations (default {DEFAULT_SEARCH_BUDGET}; more is finer)")
+    p.add_argument("--confirm", type=int, default=3,
+                   help="with --search: candidates confirmed with the full protocol (default 3)")
+    p.add_argument("--steps", type=int, help="with --search: measured PD steps of the full protocol (default 1000)")
+    p.add_argument("--seed", type=int, default=0, help="with --search: seed of the search design (default 0)")
+    p.add_argument("--effects", metavar="NAME,NAME", help="with --search: only these effects of the library "
+                                                          "(default: every effect with a plausible range)")
     _add_drive_options(p)
     _add_batch_options(p)
     p.set_defaults(func=cmd_paper_effects)
@@ -536,7 +589,7 @@ def build_parser() -> argparse.ArgumentParser:
 # Smallest value of each numeric option, checked before any work starts (option -> minimum; per command where a
 # command allows less, e.g. diagnose --pulses 0 skips the predicted resolution).
 _MINIMA: dict[str, float] = {"workers": 0, "draws": 2, "pulses": 1, "steps": 1, "levels": 2, "max_effects": 0,
-                             "candidate_budget": 0}
+                             "candidate_budget": 0, "budget": 1, "confirm": 0, "seed": 0}
 _MINIMA_BY_COMMAND: dict[tuple[str, str], float] = {("diagnose", "pulses"): 0}
 _POSITIVE = ("eps1_um", "amplitude", "max_torque", "max_travel", "duration", "noise_m")
 

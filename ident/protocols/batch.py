@@ -88,7 +88,40 @@ def run_batch(fn: Callable[[T], R], items: Sequence[T], *, scheduler: str | None
             return _gather(client, fn, items, progress, desc, scheduler)
         finally:
             client.close()
-    return _run_local(fn, items, min(workers or default_workers(), len(items)), progress, desc)
+    with _local_client(min(workers or default_workers(), len(items))) as client:
+        return _gather(client, fn, items, progress, desc, "the local cluster")
+
+
+Runner = Callable[..., list]
+
+
+@contextmanager
+def batch_session(*, scheduler: str | None = None, workers: int | None = None,
+                  threads: bool = False) -> Iterator[Runner]:
+    """One cluster for several batches: yields ``run(fn, items, progress=False, desc="runs")``, which works like
+    ``run_batch`` but reuses the session's workers (a study of several stages starts its cluster once). Same
+    options and faults as ``run_batch``; the cluster is shut down when the block ends, also on an interrupt. With
+    ``threads`` (compiled tasks that release the GIL) and no ``scheduler``, every batch runs on threads of this
+    process, as ``run_batch(..., threads=True)`` does: there is no cluster to keep."""
+    check_workers(workers)
+    if scheduler is None and (workers == 0 or threads):
+        yield lambda fn, items, progress=False, desc="runs": run_batch(fn, items, workers=workers, progress=progress,
+                                                                        desc=desc, threads=threads)
+        return
+    with (_remote_client(scheduler) if scheduler is not None else _local_client(workers or default_workers())) \
+            as client:
+        where = scheduler or "the local cluster"
+        yield lambda fn, items, progress=False, desc="runs": (
+            _gather(client, fn, list(items), progress, desc, where) if len(items) else [])
+
+
+@contextmanager
+def _remote_client(scheduler: str) -> Iterator[Any]:
+    client = connect(scheduler)
+    try:
+        yield client
+    finally:
+        client.close()
 
 
 def _run_threads(fn: Callable[[T], R], items: list[T], n: int, progress: bool, desc: str) -> list[R]:
@@ -127,7 +160,10 @@ def _run_threads(fn: Callable[[T], R], items: list[T], n: int, progress: bool, d
     return results
 
 
-def _run_local(fn: Callable[[T], R], items: list[T], n: int, progress: bool, desc: str) -> list[R]:
+@contextmanager
+def _local_client(n: int) -> Iterator[Any]:
+    """A client of a new local cluster of ``n`` worker processes, shut down (and its scratch folder removed) when
+    the block ends."""
     import logging
 
     import dask
@@ -143,7 +179,7 @@ def _run_local(fn: Callable[[T], R], items: list[T], n: int, progress: bool, des
                 cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                                        local_directory=scratch, env={"TMPDIR": scratch}, silence_logs=logging.ERROR)
                 client = Client(cluster)
-            return _gather(client, fn, items, progress, desc, "the local cluster")
+            yield client
     finally:
         _shut_down(client, cluster, interrupted=sys.exc_info()[0] is not None)
         shutil.rmtree(scratch, ignore_errors=True)
