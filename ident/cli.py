@@ -264,8 +264,8 @@ def cmd_predict(args: argparse.Namespace) -> dict:
     out.update(pred.to_dict())
     if not args.json:
         _print_fit(out)
-        print(f"impulse resolution {pred.impulse_resolution_um:.4f} um (95 % {pred.impulse_ci95_um[0]:.4f} - "
-              f"{pred.impulse_ci95_um[1]:.4f}); linear {pred.linear_resolution_um:.3f} um "
+        print(f"impulse resolution {pred.impulse_resolution_um:.4f} µm (95 % {pred.impulse_ci95_um[0]:.4f} - "
+              f"{pred.impulse_ci95_um[1]:.4f}); linear {pred.linear_resolution_um:.3f} µm "
               f"(95 % {pred.linear_ci95_um[0]:.3f} - {pred.linear_ci95_um[1]:.3f}; {pred.linear_counts} counts)")
     return out
 
@@ -387,12 +387,16 @@ def cmd_emps_report(args: argparse.Namespace) -> dict:
 
 
 def _add_log_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("log", help="log file: CSV or Parquet with a JSON sidecar (physics.md section 4), or EMPS .mat")
+    p.add_argument("log", help="log file: CSV or Parquet with a JSON sidecar (docs/physics.md section 4), or EMPS .mat")
     p.add_argument("--meta", help="JSON sidecar (default: LOG.json or meta.json beside it)")
+    _add_model_option(p)
+    p.add_argument("--json", action="store_true", help=_JSON_HELP)
+
+
+def _add_model_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", choices=("two-inertia", "rigid"), default="two-inertia",
                    help="two-inertia: motor, spring and load (needs load_pos_rad); rigid: one body with viscous and "
                         "Coulomb friction (motor-only logs such as EMPS) (default two-inertia)")
-    p.add_argument("--json", action="store_true", help=_JSON_HELP)
 
 
 def _add_drive_options(p: argparse.ArgumentParser) -> None:
@@ -481,11 +485,11 @@ def _add_identify(sub: Any) -> None:
                        epilog="exit codes: 0 identified; 3 a parameter is not identifiable from the log (the JSON "
                               "says which and why); 2 bad input; 130 interrupted")
     p.add_argument("logs", nargs="+", metavar="LOG",
-                   help="log file(s) (CSV or Parquet with a JSON sidecar, physics.md section 4, or EMPS .mat) or "
+                   help="log file(s) (CSV or Parquet with a JSON sidecar, docs/physics.md section 4, or EMPS .mat) or "
                         "folders of logs")
     p.add_argument("--meta", help="JSON sidecar (default: LOG.json or meta.json beside it)")
-    p.add_argument("--model", choices=("two-inertia", "rigid"), default="two-inertia")
-    p.add_argument("--json", action="store_true", help="print JSON")
+    _add_model_option(p)
+    p.add_argument("--json", action="store_true", help=_JSON_HELP)
     p.add_argument("--verbose", action="store_true", help="also show IPOPT's own output")
     p.add_argument("--out", help="one log: also write a plot of measured vs fitted load angle here; several: the "
                                  "table identify.csv / identify.json (required)")
@@ -563,7 +567,7 @@ def _add_emps_report(sub: Any) -> None:
 def _add_design_experiment(sub: Any) -> None:
     p = sub.add_parser("design-experiment", help="a torque schedule that identifies K*, J_l*, f_l* over a range of "
                        "drives (robust prior-averaged D-optimal design), with the bounds it achieves")
-    p.add_argument("--meta", required=True, help="JSON sidecar with the known drive data (physics.md section 4)")
+    p.add_argument("--meta", required=True, help="JSON sidecar with the known drive data (docs/physics.md section 4)")
     p.add_argument("--max-torque", type=float, required=True, help="largest motor torque allowed [N m]")
     p.add_argument("--max-travel", type=float, required=True, help="largest load (joint) travel allowed [rad]")
     p.add_argument("--duration", type=float, required=True, help="length of the experiment [s]")
@@ -573,7 +577,7 @@ def _add_design_experiment(sub: Any) -> None:
         p.add_argument(f"--{name}", type=float, nargs=2, metavar=("LOW", "HIGH"),
                        help=f"range of {name.replace('-', '_').replace('_star', '*')} (default {lo:g} {hi:g})")
     p.add_argument("--out", required=True, help="output folder: schedule.csv, bounds.csv, design.json")
-    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--json", action="store_true", help=_JSON_HELP)
     p.set_defaults(func=cmd_design_experiment)
 
 
