@@ -8,6 +8,7 @@ here as 10 s logs at 5 kHz (the timing target: at most 2 minutes each on 2 cores
 errors where the generator's shape is the library's are printed and written to ``--out``.
 
     python3 bench/diagnose.py [--duration 10] [--rate 5000] [--classes single,clean] [--only hardening]
+                              [--quick]
                               [--workers N] [--out bench/results/diagnose.json]
 """
 from __future__ import annotations
@@ -24,18 +25,35 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.diagnosis_matrix import CLASSES, matrix, run_case, summarize  # noqa: E402
 
 
+def quick_sample(cases: list) -> list:
+    """The first medium-magnitude case of each library effect, then the first 4 clean, 2 two-effect and 3
+    outside-the-library cases, in the matrix's order (a sample for a machine that cannot run the 166 logs)."""
+    single, seen = [], set()
+    for c in cases:
+        if c.cls == "single" and c.magnitude == "medium" and c.effect not in seen:
+            seen.add(c.effect)
+            single.append(c)
+    limits = {"clean": 4, "two_effect": 2, "outside": 3}
+    return single + [c for cls, n in limits.items() for c in [c for c in cases if c.cls == cls][:n]]
+
+
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--duration", type=float, default=10.0)
     ap.add_argument("--rate", type=float, default=5000.0)
     ap.add_argument("--classes", default=",".join(CLASSES))
     ap.add_argument("--only", default="", help="comma-separated effects or seeds to keep (default: all)")
+    ap.add_argument("--quick", action="store_true",
+                    help="a stratified sample of 16 logs instead of the matrix: the first medium-magnitude log of "
+                         "each library effect, 4 clean, 2 two-effect and 3 outside-the-library logs")
     ap.add_argument("--workers", type=int, default=None, help="Dask workers per diagnosis (default: the cores)")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "diagnose.json"))
     args = ap.parse_args()
     keep = {x for x in args.only.split(",") if x}
     cases = [c for c in matrix() if c.cls in args.classes.split(",")
              and (not keep or c.effect in keep or str(c.seed) in keep)]
+    if args.quick:
+        cases = quick_sample(cases)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     lines = out.with_suffix(".jsonl")

@@ -172,6 +172,32 @@ def _ls_ringing(log: DriveLog, segs: list[tuple[int, int]], f_peak: float, sigma
     return float(coef[0]), float(coef[1]), rows, window
 
 
+def _verdicts(log: DriveLog, segs: list[tuple[int, int]], f_peak: float | None, contrast: float,
+              w2_ls: float) -> tuple[bool, bool]:
+    """(consistent, trusted): the spectral and least-squares frequencies agree; the spectral peak can be trusted
+    (clear of the noise, and either consistent or resolved over ``MIN_PERIODS`` in ``MIN_SEGMENTS`` segments)."""
+    consistent = (f_peak is not None and w2_ls > 0 and
+                  abs(w2_ls / (2 * math.pi * f_peak) ** 2 - 1) <= CONSISTENT_W2)
+    longest = max((e - s for s, e in segs), default=0) / log.meta.sample_rate_hz
+    resolved = f_peak is not None and longest * f_peak >= MIN_PERIODS
+    trusted = f_peak is not None and contrast >= MIN_CONTRAST and (consistent or (resolved and
+                                                                              len(segs) >= MIN_SEGMENTS))
+    return consistent, trusted
+
+
+def _candidates(log: DriveLog, f_peak: float | None, w2_ls: float, trusted: bool) -> list[float]:
+    """Frequencies [Hz] for the first window: the trusted peak alone; else the segments' own estimates, then the
+    whole log's peaks. ``StartError`` when there is none (the load never rings)."""
+    own = [f_peak] if f_peak is not None else []
+    if not trusted and w2_ls > 0:
+        own.append(math.sqrt(w2_ls) / (2 * math.pi))
+    candidates = [f_peak] if trusted else own + whole_log_candidates(log)
+    if not candidates:
+        raise StartError("the load shows no ringing: neither free ringing while the motor rests nor a resonance "
+                         "in the whole log; K*, J_l* and f_l* are not excited (apply pulses and let the load ring)")
+    return candidates
+
+
 def equation_error_start(log: DriveLog, base: DriveParams) -> dict[str, float]:
     """w_l^2 = K_s/J_l and f_l/J_l from the load's free ringing (see the module docstring). Keys: ``w_l2``,
     ``f_l_over_J_l``, ``f_peak_hz``, ``w_l2_ls``, ``segments``, ``rows``, ``window``, ``consistent`` (1.0 when the
@@ -186,21 +212,10 @@ def equation_error_start(log: DriveLog, base: DriveParams) -> dict[str, float]:
     rows, window = 0, 0
     if f_peak is not None:
         w2_ls, f_over_J, rows, window = _ls_ringing(log, segs, f_peak, sigma)
-    consistent = (f_peak is not None and w2_ls > 0 and
-                  abs(w2_ls / (2 * math.pi * f_peak) ** 2 - 1) <= CONSISTENT_W2)
-    longest = max((e - s for s, e in segs), default=0) / rate
-    resolved = f_peak is not None and longest * f_peak >= MIN_PERIODS
-    trusted = f_peak is not None and contrast >= MIN_CONTRAST and (consistent or (resolved and
-                                                                              len(segs) >= MIN_SEGMENTS))
+    consistent, trusted = _verdicts(log, segs, f_peak, contrast, w2_ls)
     # how far the frequency may be off: the two estimates' disagreement (w_l^2), at least 6 % (+-3 % in w_l)
     spread = abs(w2_ls / (2 * math.pi * f_peak) ** 2 - 1) if consistent else 0.0
-    own = [f_peak] if f_peak is not None else []
-    if not trusted and w2_ls > 0:
-        own.append(math.sqrt(w2_ls) / (2 * math.pi))
-    candidates = [f_peak] if trusted else own + whole_log_candidates(log)
-    if not candidates:
-        raise StartError("the load shows no ringing: neither free ringing while the motor rests nor a resonance "
-                         "in the whole log; K*, J_l* and f_l* are not excited (apply pulses and let the load ring)")
+    candidates = _candidates(log, f_peak, w2_ls, trusted)
     f0 = candidates[0]
     out.update(w_l2=(2 * math.pi * f0) ** 2, w_l2_ls=w2_ls, f_peak_hz=f0,
                f_l_over_J_l=f_over_J if consistent and f_over_J > 0 else math.nan,
