@@ -25,12 +25,6 @@ typedef struct {
     unsigned log_mask; /* bit HD_LOG_<category> set: messages of that category go to the logger */
 } Instance;
 
-static const char *const CATEGORY[] = {
-#define X(bit, name) name,
-    HD_LOG_CATEGORIES(X)
-#undef X
-};
-#define N_CATEGORIES (sizeof CATEGORY / sizeof CATEGORY[0])
 
 static const char *const PHASE_NAME[HD_PHASE_COUNT] = {"instantiated", "initializationMode", "stepComplete",
                                                        "terminated", "error"};
@@ -51,7 +45,7 @@ static void log_msg(Instance *in, fmi2Status status, unsigned category, const ch
         fmt_safe[j++] = buf[i];
     }
     fmt_safe[j] = '\0';
-    in->cb.logger(in->cb.componentEnvironment, in->name, status, CATEGORY[category], fmt_safe);
+    in->cb.logger(in->cb.componentEnvironment, in->name, status, hd_log_category(category), fmt_safe);
 }
 
 /* fmi2Error: the instance enters the state "error" (the simulation cannot be continued with it). */
@@ -97,31 +91,18 @@ static int arrays(Instance *in, const char *where, size_t n, const void *vr, con
 const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
 const char *fmi2GetVersion(void) { return fmi2Version; }
 
-static int category_bit(const char *name) {
-    for (unsigned i = 0; i < N_CATEGORIES; ++i)
-        if (name && strcmp(name, CATEGORY[i]) == 0) return (int)i;
-    return -1;
-}
 
 /* loggingOn with no categories: all of them; with categories: exactly those. Off with no categories: none; off
  * with categories: those are switched off. */
 fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n, const fmi2String cats[]) {
     INSTANCE();
-    unsigned named = 0;
     if (n > 0 && !cats) return fail(in, "fmi2SetDebugLogging", "NULL categories");
-    for (size_t i = 0; i < n; ++i) {
-        int bit = category_bit(cats[i]);
-        if (bit < 0) {
-            char msg[256];
-            snprintf(msg, sizeof msg, "unknown log category \"%s\" (this FMU has: %s)", cats[i] ? cats[i] : "NULL",
-                     HD_LOG_CATEGORY_LIST);
-            return fail(in, "fmi2SetDebugLogging", msg);
-        }
-        named |= 1u << bit;
+    const char *bad = NULL;
+    if (hd_log_mask(&in->log_mask, on, n, cats, &bad) != 0) {
+        char msg[256];
+        snprintf(msg, sizeof msg, "unknown log category \"%s\" (this FMU has: %s)", bad, HD_LOG_CATEGORY_LIST);
+        return fail(in, "fmi2SetDebugLogging", msg);
     }
-    unsigned all = (1u << N_CATEGORIES) - 1u;
-    if (on) in->log_mask = n == 0 ? all : named;
-    else in->log_mask = n == 0 ? 0u : in->log_mask & ~named;
     return fmi2OK;
 }
 

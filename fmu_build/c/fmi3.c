@@ -34,12 +34,6 @@ typedef struct {
 #define M_ANY (M_INST | M_INIT | M_STEP | M_TERM | M_ERR)
 #define M_SET (M_INST | M_INIT | M_STEP)
 
-static const char *const CATEGORY[] = {
-#define X(bit, name) name,
-    HD_LOG_CATEGORIES(X)
-#undef X
-};
-#define N_CATEGORIES (sizeof CATEGORY / sizeof CATEGORY[0])
 
 static const char *const PHASE_NAME[HD_PHASE_COUNT] = {"Instantiated", "Initialization Mode", "Step Mode",
                                                        "Terminated", "Terminated after an error"};
@@ -51,7 +45,7 @@ static void log_msg(Instance *in, fmi3Status status, unsigned category, const ch
     va_start(ap, fmt);
     vsnprintf(buf, sizeof buf, fmt, ap);
     va_end(ap);
-    in->log(in->env, status, CATEGORY[category], buf);
+    in->log(in->env, status, hd_log_category(category), buf);
 }
 
 /* fmi3Error: the instance enters Terminated (HD_PHASE_ERROR). */
@@ -89,31 +83,18 @@ static int arrays(Instance *in, const char *where, size_t n, const void *vr, con
 
 const char *fmi3GetVersion(void) { return fmi3Version; }
 
-static int category_bit(const char *name) {
-    for (unsigned i = 0; i < N_CATEGORIES; ++i)
-        if (name && strcmp(name, CATEGORY[i]) == 0) return (int)i;
-    return -1;
-}
 
 /* loggingOn with no categories: all of them; with categories: exactly those. Off with no categories: none; off
  * with categories: those are switched off. */
 fmi3Status fmi3SetDebugLogging(fmi3Instance c, fmi3Boolean on, size_t n, const fmi3String cats[]) {
     INSTANCE(c);
-    unsigned named = 0;
     if (n > 0 && !cats) return fail(in, "fmi3SetDebugLogging", "NULL categories");
-    for (size_t i = 0; i < n; ++i) {
-        int bit = category_bit(cats[i]);
-        if (bit < 0) {
-            char msg[256];
-            snprintf(msg, sizeof msg, "unknown log category \"%s\" (this FMU has: %s)", cats[i] ? cats[i] : "NULL",
-                     HD_LOG_CATEGORY_LIST);
-            return fail(in, "fmi3SetDebugLogging", msg);
-        }
-        named |= 1u << bit;
+    const char *bad = NULL;
+    if (hd_log_mask(&in->log_mask, on, n, cats, &bad) != 0) {
+        char msg[256];
+        snprintf(msg, sizeof msg, "unknown log category \"%s\" (this FMU has: %s)", bad, HD_LOG_CATEGORY_LIST);
+        return fail(in, "fmi3SetDebugLogging", msg);
     }
-    unsigned all = (1u << N_CATEGORIES) - 1u;
-    if (on) in->log_mask = n == 0 ? all : named;
-    else in->log_mask = n == 0 ? 0u : in->log_mask & ~named;
     return fmi3OK;
 }
 

@@ -1075,3 +1075,32 @@ HDStatus hd_do_step(HDModel *m, double h, HDStepStats *stats, char *err, size_t 
     *m = w;
     return HD_OK;
 }
+
+
+/* ------------------------------------------------------------------------------------------ debug logging ---- */
+
+static const char *const LOG_CATEGORY[] = {
+#define X(bit, name) name,
+    HD_LOG_CATEGORIES(X)
+#undef X
+};
+#define N_LOG_CATEGORIES (sizeof LOG_CATEGORY / sizeof LOG_CATEGORY[0])
+
+const char *hd_log_category(unsigned bit) { return bit < N_LOG_CATEGORIES ? LOG_CATEGORY[bit] : "unknown"; }
+
+int hd_log_mask(unsigned *mask, int on, size_t n, const char *const categories[], const char **bad) {
+    unsigned named = 0;
+    for (size_t i = 0; i < n; ++i) {
+        unsigned bit = 0;
+        while (bit < N_LOG_CATEGORIES && !(categories[i] && strcmp(categories[i], LOG_CATEGORY[bit]) == 0)) ++bit;
+        if (bit == N_LOG_CATEGORIES) {
+            *bad = categories[i] ? categories[i] : "NULL";
+            return -1;
+        }
+        named |= 1u << bit;
+    }
+    unsigned all = (1u << N_LOG_CATEGORIES) - 1u;
+    if (on) *mask = n == 0 ? all : named;
+    else *mask = n == 0 ? 0u : *mask & ~named;
+    return 0;
+}

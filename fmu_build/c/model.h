@@ -118,4 +118,10 @@ typedef struct {
  * On error the model is left as it was before the call. stats may be NULL. */
 HDStatus hd_do_step(HDModel *m, double h, HDStepStats *stats, char *err, size_t errlen);
 
+/* Debug logging, the same in both FMI versions: the log mask after SetDebugLogging(on, n, categories). With no
+ * categories, on sets every category and off clears them all; with categories, on sets exactly those and off clears
+ * those. Returns -1 (mask unchanged) and the offending name in *bad when a category is unknown or NULL. */
+int hd_log_mask(unsigned *mask, int on, size_t n, const char *const categories[], const char **bad);
+const char *hd_log_category(unsigned bit); /* the category's name */
+
 #endif
