@@ -365,6 +365,9 @@ def _gauss_newton_solver(res: Any, n: int, m: int, max_iter: int, verbose: bool 
     hess = ca.Function("nlp_hess_l", [x, p, lam_f, lam_g], [ca.triu(lam_f * ca.mtimes(jr.T, jr) / m)])
     return ca.nlpsol("output_error", "ipopt", {"x": x, "f": f},
                      {"hess_lag": hess, "print_time": verbose, "verbose_init": False,
+                      # a trial point the FMU cannot simulate returns NaN and IPOPT backtracks: expected, not news
+                      # for the user (CasADi would print a warning per such point); --verbose shows them
+                      "show_eval_warnings": verbose,
                       **({"iteration_callback": stop} if stop is not None else {}),
                       # The exact model's cost has micro-steps where a marginal stick/slip decision flips (a
                       # 1e-6 relative change of a parameter can reorder one event): stop once the objective no
