@@ -20,8 +20,10 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
 6. **Converge** the accepted model (``plugin.converge``), iterate; then **backward elimination**: a named effect
    whose removal does not worsen the held-back prediction significantly only stood in for later ones, and goes.
 7. **Say how sure**: a named effect is tentative when the final model leaves the sensor's residual above
-   ``CONFIDENT_OVER_NOISE`` times its noise (a shape the library does not have, or an effect outside it) or when a
-   candidate was not ruled out; what is left is localised by regime (*unexplained*), never named.
+   ``CONFIDENT_OVER_NOISE`` times its noise (a shape the library does not have, or an effect outside it), when a
+   candidate was not ruled out, or when its refitted runner-up predicts the held-back data as well (the acceptance
+   rule's Diebold-Mariano test cannot tell the two apart: e.g. load-side viscous damping and a small hysteresis
+   both explain a ringing decay); what is left is localised by regime (*unexplained*), never named.
 
 Ctrl-C stops a diagnosis at once: worker processes are killed, nothing is written.
 """
@@ -142,6 +144,7 @@ class _Search:
         self.steps: list[DiagnosisStep] = []
         self.models: list[Fitted] = []
         self.named: list[NamedEffect] = []
+        self.rivals: dict[str, str] = {}  # named effect -> why a runner-up explains the log as well
         self.notes: list[str] = []
         self.unresolved: dict[str, dict[str, Any]] = {}   # candidates not fitted and not ruled out since
 
@@ -257,6 +260,12 @@ class _Search:
                     f"{v.delta_bic:+.1f}; score test {float(lm.iloc[0]) if len(lm) else math.nan:.4g}")
         runner, margin, why = _runner_up(winner, fits, screen)
         self.named.append(NamedEffect(name, math.nan, (math.nan, math.nan), "", evidence + why, runner, margin))
+        rival = next((f for f in fits if f.name == runner and f.model is not None), None)
+        if rival is not None and not dm_pvalue(rival.model.held_losses, winner.model.held_losses) < DM_LEVEL:
+            # the same test that accepts an effect cannot tell the two apart: the log does not pin which one
+            self.rivals[name] = (f"its runner-up {runner} predicts the held-back data as well (Diebold-Mariano "
+                                 f"p = {dm_pvalue(rival.model.held_losses, winner.model.held_losses):.2g}, not "
+                                 f"below {DM_LEVEL:g}): this log cannot tell {name} from {runner}")
         self._record(model, name, v.gain, {"dm_p": v.dm_p, "delta_bic": v.delta_bic, "runner_up": runner,
                                            "margin": margin})
         self.say(f"step {k + 1}: {self._gap(model)}")
@@ -328,7 +337,9 @@ def _runner_up(winner: CandidateFit, fits: list[CandidateFit], screen: pd.DataFr
     if refitted:
         r = refitted[0]
         margin = r.model.held_cost / max(winner.model.held_cost, 1e-300)
-        return r.name, margin, f"; runner-up {r.name} predicts the held-back data {margin:.4g}x worse"
+        p = dm_pvalue(r.model.held_losses, winner.model.held_losses)
+        return r.name, margin, (f"; runner-up {r.name} predicts the held-back data {margin:.4g}x worse "
+                                f"(Diebold-Mariano p = {p:.2g})")
     others = screen[screen.candidate != winner.name]
     if others.empty:
         return None, None, "; no other candidate"
@@ -370,7 +381,8 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
         reasons.append("candidate(s) " + ", ".join(sorted({c["candidate"] for c in search.not_ruled_out}))
                        + " could not be fitted and are not ruled out")
     for e in named:
-        e.tentative, e.why_tentative = bool(reasons), "; ".join(reasons)
+        own = reasons + ([search.rivals[e.name]] if e.name in search.rivals else [])
+        e.tentative, e.why_tentative = bool(own), "; ".join(own)
     table = plugin.regimes(final)
     unexplained = plugin.unexplained(final, table)
     return named, unexplained, table, _summary(named, unexplained, over, search.not_ruled_out)

@@ -44,7 +44,8 @@ class NamedEffect:
     """An effect the workflow named: its fitted magnitude (``unit``) with a 95 % interval, the evidence, and how
     sure the choice was against the runner-up (``margin``: the runner-up's held-back cost / the winner's).
     ``tentative``: the name is the library's best improvement, not an explanation; ``why_tentative`` says why
-    (the final model stays above the noise, or a candidate could not be fitted and was not ruled out)."""
+    (the final model stays above the noise, a candidate could not be fitted and was not ruled out, or the runner-up
+    predicts the held-back data as well)."""
 
     name: str
     magnitude: float
