@@ -516,7 +516,7 @@ def _add_diagnose(sub: Any) -> None:
     _add_log_options(p)
     p.add_argument("--out", required=True, help="output directory (diagnosis.md, diagnosis.json, PNGs, fitted FMU)")
     p.add_argument("--holdout", help="a second log to hold back for scoring (default: the last 30 %% of LOG)")
-    p.add_argument("--max-effects", type=int, default=3, help="stop after naming this many effects (default 3; 0 checks the base model only)")
+    p.add_argument("--max-effects", type=int, default=3, help="stop after naming this many effects (default 3)")
     p.add_argument("--pulses", type=int, default=200,
                    help="pulses per impulse experiment for each model's predicted resolution (0: skip; default 200)")
     p.add_argument("--workers", type=int, default=None,
@@ -592,7 +592,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # Smallest value of each numeric option, checked before any work starts (option -> minimum; per command where a
 # command allows less, e.g. diagnose --pulses 0 skips the predicted resolution).
-_MINIMA: dict[str, float] = {"workers": 0, "draws": 2, "pulses": 1, "steps": 1, "levels": 2, "max_effects": 0,
+_MINIMA: dict[str, float] = {"workers": 0, "draws": 2, "pulses": 1, "steps": 1, "levels": 2, "max_effects": 1,
                              "candidate_budget": 0, "budget": 1, "confirm": 0, "seed": 0}
 _MINIMA_BY_COMMAND: dict[tuple[str, str], float] = {("diagnose", "pulses"): 0}
 _POSITIVE = ("eps1_um", "amplitude", "max_torque", "max_travel", "duration", "noise_m")

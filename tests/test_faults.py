@@ -27,7 +27,7 @@ def run_cli(args: list[str], capsys) -> tuple[int, str]:
     (["sweep", "--workers", "-1", "--out", "OUT"], "--workers = -1: must be >= 0"),
     (["study", "--levels", "1", "--out", "OUT"], "--levels = 1: must be >= 2"),
     (["predict", "run.csv", "--draws", "0"], "--draws = 0: must be >= 2"),
-    (["diagnose", "run.csv", "--out", "OUT", "--max-effects", "-1"], "--max-effects = -1: must be >= 0"),
+    (["diagnose", "run.csv", "--out", "OUT", "--max-effects", "-1"], "--max-effects = -1: must be >= 1"),
     (["resolution", "--controller", "impulse", "--eps1-um", "0"], "--eps1-um = 0.0: must be > 0"),
     (["resolution", "--controller", "impulse", "--eps1-um", "nan"], "--eps1-um = nan: must be a finite number"),
     (["resolution", "--controller", "impulse", "--fl-star", "0", "--pulses", "5"],
