@@ -92,10 +92,13 @@ def cmd_resolution(args: argparse.Namespace) -> dict:
     if args.increments:
         out["increments_m"] = [float(x) for x in r.increments_m]
     if args.out:
-        Path(args.out).mkdir(parents=True, exist_ok=True)
-        csv = Path(args.out) / f"{args.controller}_increments.csv"
-        r.to_frame().to_csv(csv, index=False)
-        out.update(csv=str(csv), png=str(r.plot(Path(args.out) / f"{args.controller}.png")))
+        from .common.output import staged_folder
+
+        csv, png = (Path(args.out) / f"{args.controller}{suffix}" for suffix in ("_increments.csv", ".png"))
+        with staged_folder(args.out) as stage:
+            r.to_frame().to_csv(stage / csv.name, index=False)
+            r.plot(stage / png.name)
+        out.update(csv=str(csv), png=str(png))
     if not args.json:
         _print_resolution(out)
     return out
@@ -121,12 +124,14 @@ def cmd_sweep(args: argparse.Namespace) -> dict:
 
     sweep = friction_sweep(_params_from(args), args.levels, args.pulses, scheduler=args.scheduler,
                            workers=args.workers, progress=_progress(args))
+    from .common.output import staged_folder
+
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     df = sweep.to_frame()
-    df.to_csv(out / "sweep.csv", index=False)
-    plots = sweep.plot(out)
-    result = {"csv": str(out / "sweep.csv"), "plots": {k: str(v) for k, v in plots.items()},
+    with staged_folder(out, last="sweep.csv") as stage:
+        plots = sweep.plot(stage)
+        df.to_csv(stage / "sweep.csv", index=False)
+    result = {"csv": str(out / "sweep.csv"), "plots": {k: str(out / Path(v).name) for k, v in plots.items()},
               "trend": sweep.trend(), "levels": df.to_dict(orient="records")}
     if not args.json:
         print(df.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
@@ -216,8 +221,11 @@ def cmd_identify(args: argparse.Namespace) -> Any:
     if args.out and args.model != "rigid":
         from pathlib import Path
 
-        Path(args.out).mkdir(parents=True, exist_ok=True)
-        out["png"] = str(fit.plot(Path(args.out) / "identify.png"))
+        from .common.output import staged_folder
+
+        with staged_folder(args.out) as stage:
+            fit.plot(stage / "identify.png")
+        out["png"] = str(Path(args.out) / "identify.png")
     if not args.json:
         _print_fit(out)
     return out

@@ -52,12 +52,21 @@ def staged_folder(out_dir: str | Path, last: str | None = None) -> Iterator[Path
     ``last`` (the report) after all the others, so that a report that exists is complete. On any error the staging
     folder is removed and ``out_dir`` is left as it was."""
     out = Path(out_dir)
+    created = [a for a in reversed(out.parents) if not a.exists()]  # parents this call makes, outermost first
     out.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
+    done = False
     try:
         yield staging
         out.mkdir(exist_ok=True)
         for name in sorted(os.listdir(staging), key=lambda n: n == last):
             os.replace(staging / name, out / name)
+        done = True
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+        if not done:  # nothing of a failed run stays behind, not even the parent folders made for it
+            for folder in reversed(created):
+                try:
+                    folder.rmdir()
+                except OSError:
+                    break

@@ -17,6 +17,7 @@ from pathlib import Path
 import pandas as pd
 from tqdm import tqdm
 
+from ..common.output import staged_folder
 from ..common.plotting import figure, save
 from ..fitting.logs import DriveLog, LogMeta, write_log
 from ..model.params import DriveParams
@@ -114,13 +115,14 @@ def write_demo(out_dir: str | Path, **kw) -> dict:
     """Run the pulse train and write ``pulse_train.csv`` with its sidecar ``pulse_train.json`` (``write_log``),
     ``pulse_train.png`` and ``summary.json`` (SI keys)."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    result = pulse_train(**kw)
-    csv, meta = write_log(result.to_log(), out / "pulse_train.csv")
-    png = result.plot(out / "pulse_train.png")
-    summary = {"csv": str(csv), "meta": str(meta), "png": str(png), "increments_m": result.increments_m,
+    result = pulse_train(**kw)   # the work first: a failed run leaves no folder behind
+    summary = {"csv": str(out / "pulse_train.csv"), "meta": str(out / "pulse_train.json"),
+               "png": str(out / "pulse_train.png"), "increments_m": result.increments_m,
                "amplitude_star": result.amplitude_star, "width_s": result.width_s, "dt_s": result.dt,
                "torque_convention": "motor_torque_Nm[k] is held over [time_s[k], time_s[k+1])",
                "params": result.params.to_dict()}
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    with staged_folder(out, last="summary.json") as stage:
+        write_log(result.to_log(), stage / "pulse_train.csv")
+        result.plot(stage / "pulse_train.png")
+        (stage / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
