@@ -9,7 +9,8 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    zero, at the current model, over a small grid of its nonlinear parameter (grids derived from the data sheet and
    the log, printed in the report). Candidates whose p-value stays above ``screening.SCREEN_LEVEL`` are reported
    with their statistic and not refitted.
-4. **Refit** the passing candidates, at most ``MAX_REFITS`` of them by decreasing statistic, on the workers
+4. **Refit** every passing candidate (a candidate the screen cannot rule out is only ruled out by its refit; the
+   screen's first-order ranking can misorder candidates that explain the same residual), on the workers
    (``plugin.refit``), each within its evaluation budget (simulations, never seconds). A candidate that runs out
    of budget is *not ruled out*: no name of the diagnosis is then more than tentative.
 5. **Accept** the refitted candidate with the lowest held-back cost when it passes the one acceptance rule every
@@ -47,8 +48,6 @@ from .models import CandidateFit, Fitted, ModelPlugin
 from .result import Diagnosis, DiagnosisStep, NamedEffect, PublishedReference
 from .screening import SCREEN_LEVEL, ranked, screen_table
 
-#: refits per step: the best few of the screen (the screen's first-order ranking can misorder close candidates)
-MAX_REFITS = 3
 #: practical significance: a named effect must remove more than 1 % of what the model leaves in the held-back data
 #: (a ratio of two costs: the noise level's scale cancels in it)
 MIN_GAIN = 1.01
@@ -188,7 +187,7 @@ class _Search:
                 self.unresolved.pop(t.candidate, None)
         self.say("screen: " + ", ".join(f"{t.candidate} {t.statistic:.3g} (p {t.p_value:.2g})" if t.screened
                                         else f"{t.candidate} (not screenable)" for t in tests))
-        passing = [t for t in tests if t.passed][:MAX_REFITS]
+        passing = [t for t in tests if t.passed]
         if not passing:
             self.notes.append(f"step {k}: no candidate passes the screen (score-test p-value below "
                               f"{SCREEN_LEVEL:g}): none refitted")
