@@ -21,7 +21,7 @@ from ..common.output import staged_folder
 from ..common.plotting import figure, save
 from ..fitting.logs import DriveLog, LogMeta, write_log
 from ..model.params import DriveParams
-from ..model.plant import Plant, Sample
+from ..model.plant import Plant, Sample, SettleError
 
 # Sample field -> column of the demo's table (the log columns first, then the plant's other outputs)
 COLUMNS = {"time": "time_s", "q_m": "motor_pos_rad", "q_l": "load_pos_rad", "v_m": "v_m_rad_s", "v_l": "v_l_rad_s",
@@ -82,8 +82,11 @@ def _steps_per_pulse(width_s: float, dt: float) -> int:
 
 
 def pulse_train(params: DriveParams | None = None, *, amplitude_star: float = 3.0, width_s: float = 1e-3,
-                pulses: int = 10, dt: float = 1e-3, progress: bool = False) -> PulseTrainResult:
-    """Apply ``pulses`` torque pulses from rest, each followed by a rest, and record everything."""
+                pulses: int = 10, dt: float = 1e-3, max_rest_s: float = 60.0,
+                progress: bool = False) -> PulseTrainResult:
+    """Apply ``pulses`` torque pulses from rest, each followed by a rest, and record everything. ``SettleError``
+    when the drive is not at rest ``max_rest_s`` (simulated) after a pulse, as ``ImpulseController`` does (e.g. a
+    motor friction f_m so small that the motor never sticks)."""
     params = params or DriveParams()
     if pulses < 1:
         raise ValueError(f"pulses must be >= 1, got {pulses}")
@@ -98,9 +101,14 @@ def pulse_train(params: DriveParams | None = None, *, amplitude_star: float = 3.
             for _ in range(n_pulse):
                 rows.append((*s, torque))        # torque[k] is held over [t_k, t_k+1)
                 s = plant.step(torque, dt)
-            while not s.at_rest:
+            for _ in range(math.ceil(max_rest_s / dt)):
+                if s.at_rest:
+                    break
                 rows.append((*s, 0.0))
                 s = plant.step(0.0, dt)
+            else:
+                raise SettleError(f"the drive did not come to rest within {max_rest_s:g} s after pulse "
+                                  f"{len(increments) + 1} (f_m = {params.f_m:g} N.m, f_l = {params.f_l:g} N.m)")
             increments.append(s.arm_position - q0)
         rows.append((*s, 0.0))                    # the last sample: nothing is applied after it
     samples = pd.DataFrame(rows, columns=[*Sample._fields, "motor_torque_Nm"]).rename(columns=COLUMNS)
