@@ -238,10 +238,13 @@ def run_cli_fuzz(seed: int, n: int, folder: Path) -> dict[int, int]:
     for _ in range(n):
         code = check_cli_case(rng, folder)
         counts[code] = counts.get(code, 0) + 1
+        import shutil
+
         for p in folder.iterdir():   # a successful run's output is fine; clear it for the next case
             if p.name not in ("still.csv", "still.json", "existing_file", "existing_dir"):
-                import shutil
                 shutil.rmtree(p) if p.is_dir() else p.unlink()
+        for p in (folder / "existing_dir").iterdir():   # including what it wrote into the existing folder
+            shutil.rmtree(p) if p.is_dir() else p.unlink()
     return counts
 
 
