@@ -1,7 +1,7 @@
 """The resolution study of the paper (sections III-V) on one drive, written as a markdown report with plots.
 
 ``run_study`` computes; ``write_study`` writes everything into a staging folder and moves it into place only when
-complete, so a failed run never leaves a report that looks finished. The verdicts are in ``paper_checks``, the
+complete, so a failed run never leaves a report that looks finished. The verdicts are in ``paper_claims``, the
 report's text in ``paper_report`` (every sentence that states a finding is chosen by the numbers it describes).
 """
 from __future__ import annotations
@@ -21,7 +21,7 @@ from ..model.params import DriveParams
 from ..protocols.resolution import ImpulseResolution, LinearResolution, impulse_resolution, linear_resolution
 from ..protocols.sweep import FrictionSweep, friction_sweep
 from ..protocols.transient import Transient, start_up_transient
-from .paper_checks import PAPER, Claim, avalanche, claims, growth
+from .paper_claims import PAPER, Verdict, avalanche, growth, study_verdicts
 from .paper_report import report_markdown
 
 __all__ = ["PAPER", "Study", "run_study", "shows_own_level", "write_report", "write_study"]
@@ -37,9 +37,9 @@ class Study:
     impulse: ImpulseResolution
     sweep: FrictionSweep
 
-    def claims(self) -> list[Claim]:
+    def claims(self) -> list[Verdict]:
         """The paper's claims against this study's figures, each with its computed verdict."""
-        return claims(self.linear.resolution_m, self.linear.counts, self.impulse.resolution_m, self.sweep)
+        return study_verdicts(self.linear.resolution_m, self.linear.counts, self.impulse.resolution_m, self.sweep)
 
     def comparison(self) -> pd.DataFrame:
         """Paper vs model, one row per claim, with the verdict and its criterion."""
@@ -47,7 +47,7 @@ class Study:
                             columns=["claim", "paper", "model", "verdict", "criterion"])
 
     def avalanche(self) -> dict[str, Any]:
-        """The start of the highest-friction experiment (``paper_checks.avalanche``)."""
+        """The start of the highest-friction experiment (``paper_claims.avalanche``)."""
         return avalanche(self.sweep)
 
     def transient(self) -> Transient:

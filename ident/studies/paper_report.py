@@ -13,7 +13,7 @@ import numpy as np
 from ..common.markdown import md_table
 from ..model.params import DriveParams
 from ..protocols.transient import SETTLING_BAND, Transient, alternation
-from .paper_checks import PAPER, PAPER_AUTHORS, PAPER_TITLE, growth, rounds_to
+from .paper_claims import PAPER, PAPER_AUTHORS, PAPER_TITLE, growth, rounds_to
 from .paper_effects import AVALANCHE_RATIO
 
 if TYPE_CHECKING:
