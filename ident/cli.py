@@ -351,28 +351,40 @@ def cmd_design_experiment(args: argparse.Namespace) -> dict:
     return {**out, "files": files}
 
 
-def cmd_paper_search(args: argparse.Namespace) -> dict:
-    """``paper-effects --search``: the Pareto search of the effect library for the paper's claims together."""
+def _search_fidelity(args: argparse.Namespace) -> Any:
+    """The full protocol that confirms the search's candidates, from --levels / --pulses / --steps."""
     from .protocols.sweep import friction_levels
-    from .studies import paper_search as ps
     from .studies.paper_search import FULL, Fidelity
-    from .studies.paper_search_report import reach, write_paper_search
 
     levels = args.levels or len(FULL.levels)
     if levels % 2 == 0:
         raise ValueError(f"--levels = {levels}: with --search the levels f_l* = 10^(-2 + 2 i/(n - 1)) must include "
                          "0.1 (the impulse claim's level), which needs an odd number of levels")
-    full = Fidelity("full", tuple(float(f) for f in friction_levels(levels)), args.pulses or FULL.n_pulses,
+    return Fidelity("full", tuple(float(f) for f in friction_levels(levels)), args.pulses or FULL.n_pulses,
                     args.steps or FULL.n_steps)
-    effects = [e.strip() for e in args.effects.split(",") if e.strip()] if args.effects is not None else None
-    if effects is not None:
-        from .studies.effect_ranges import effect_ranges
 
-        known = list(effect_ranges())
-        bad = [e for e in effects if e not in known]
-        if bad or not effects or len(set(effects)) != len(effects):
-            raise ValueError(f"--effects {args.effects!r}: give distinct names among {', '.join(known)}"
-                             + (f" (unknown: {', '.join(bad)})" if bad else ""))
+
+def _search_effects(args: argparse.Namespace) -> list[str] | None:
+    """--effects as a list of distinct library names (None: all of them)."""
+    if args.effects is None:
+        return None
+    from .studies.effect_ranges import effect_ranges
+
+    effects = [e.strip() for e in args.effects.split(",") if e.strip()]
+    known = list(effect_ranges())
+    bad = [e for e in effects if e not in known]
+    if bad or not effects or len(set(effects)) != len(effects):
+        raise ValueError(f"--effects {args.effects!r}: give distinct names among {', '.join(known)}"
+                         + (f" (unknown: {', '.join(bad)})" if bad else ""))
+    return effects
+
+
+def cmd_paper_search(args: argparse.Namespace) -> dict:
+    """``paper-effects --search``: the Pareto search of the effect library for the paper's claims together."""
+    from .studies import paper_search as ps
+    from .studies.paper_search_report import reach, write_paper_search
+
+    full, effects = _search_fidelity(args), _search_effects(args)
     search, report = write_paper_search(args.out, base=_params_from(args), budget=args.budget, confirm=args.confirm,
                                         seed=args.seed, effects=effects, screen=ps.SCREEN, full=full,
                                         workers=args.workers, scheduler=args.scheduler, progress=True)
