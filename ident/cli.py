@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from typing import Any, Sequence
@@ -186,6 +187,14 @@ def _identified(args: argparse.Namespace) -> tuple[object, dict]:
     return fit, fit.to_dict()
 
 
+def _digits(value: float, ci95: Sequence[float]) -> int:
+    """Significant digits that show an interval's width (at least 6): a tight interval must not print as [x, x]."""
+    half = abs(ci95[1] - ci95[0]) / 2
+    if not (half > 0 and value and math.isfinite(half) and math.isfinite(value)):
+        return 6
+    return int(min(15, max(6, math.ceil(math.log10(abs(value) / half)) + 2)))
+
+
 def _print_fit(out: dict) -> None:
     """The fit as text: values with intervals, the identifiability verdict, the noise, data checks, warnings."""
     for name, v in out.items():
@@ -193,7 +202,8 @@ def _print_fit(out: dict) -> None:
             if v["value"] is None:
                 line = f"{name:10s} no result"
             else:
-                line = f"{name:10s} {v['value']:.6g}  95 % [{v['ci95'][0]:.6g}, {v['ci95'][1]:.6g}]"
+                d = _digits(v["value"], v["ci95"])
+                line = f"{name:10s} {v['value']:.{d}g}  95 % [{v['ci95'][0]:.{d}g}, {v['ci95'][1]:.{d}g}]"
             print(line + ("" if v.get("identifiable", True) else "  NOT IDENTIFIABLE: " + v["reason"]))
     if "identifiable" in out:
         print("identifiable: " + ("yes, all three" if out["identifiable"] else "NO") +
