@@ -66,6 +66,10 @@ def main() -> None:
     ap.add_argument("--delays", type=float, nargs="+", default=[3.0, 6.0])
     ap.add_argument("--repeat", type=int, default=1)
     args = ap.parse_args()
+    # A terminal's Ctrl-C reaches a process whose SIGINT is not ignored. A script started in the background by a
+    # non-interactive shell inherits SIGINT ignored, and so would the commands it starts (which then, rightly, keep
+    # ignoring it): give them the default disposition, as a terminal does.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     work = Path(tempfile.mkdtemp(prefix="hdrive-bench-interrupts-"))
     log = make_log(work)
     rows = []
