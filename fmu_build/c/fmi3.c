@@ -61,19 +61,14 @@ static fmi3Status discard(Instance *in, const char *where, const char *msg) {
     return fmi3Discard;
 }
 
+/* A call allowed in the instance's phase (``mask``), and with its arrays given; else fail() with the reason. */
 static int allowed(Instance *in, const char *where, unsigned mask) {
-    if ((unsigned)in->phase < HD_PHASE_COUNT && (mask & (1u << in->phase))) return 1;
     char msg[128];
-    snprintf(msg, sizeof msg, "must not be called in the current state (%s)",
-             (unsigned)in->phase < HD_PHASE_COUNT ? PHASE_NAME[in->phase] : "invalid");
-    fail(in, where, msg);
-    return 0;
+    return hd_phase_allows(in->phase, mask, PHASE_NAME, msg, sizeof msg) || (fail(in, where, msg), 0);
 }
 
 static int arrays(Instance *in, const char *where, size_t n, const void *vr, const void *values) {
-    if (n == 0 || (vr && values)) return 1;
-    fail(in, where, "NULL array of value references or values");
-    return 0;
+    return n == 0 || (vr && values) || (fail(in, where, "NULL array of value references or values"), 0);
 }
 
 /* Every function taking an instance: NULL is refused (there is nobody to log to). */

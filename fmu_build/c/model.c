@@ -1104,3 +1104,10 @@ int hd_log_mask(unsigned *mask, int on, size_t n, const char *const categories[]
     else *mask = n == 0 ? 0u : *mask & ~named;
     return 0;
 }
+
+int hd_phase_allows(HDPhase phase, unsigned mask, const char *const names[HD_PHASE_COUNT], char *msg, size_t n) {
+    if ((unsigned)phase < HD_PHASE_COUNT && (mask & (1u << phase))) return 1;
+    snprintf(msg, n, "must not be called in the current state (%s)",
+             (unsigned)phase < HD_PHASE_COUNT ? names[phase] : "invalid");
+    return 0;
+}

@@ -124,4 +124,8 @@ HDStatus hd_do_step(HDModel *m, double h, HDStepStats *stats, char *err, size_t 
 int hd_log_mask(unsigned *mask, int on, size_t n, const char *const categories[], const char **bad);
 const char *hd_log_category(unsigned bit); /* the category's name */
 
+/* Is a call allowed in ``phase`` (bit ``phase`` of ``mask``)? If not, ``msg`` says why, with the phase's name in the
+ * FMI version's words (``names``). */
+int hd_phase_allows(HDPhase phase, unsigned mask, const char *const names[HD_PHASE_COUNT], char *msg, size_t n);
+
 #endif
