@@ -298,23 +298,26 @@ def _stop_callback(problem: OutputError, n: int, stop: Callable[[], bool] | None
 
 @contextmanager
 def _sigint_flag(problem: OutputError) -> Iterator[None]:
-    """While IPOPT runs, Ctrl-C (SIGINT) only sets ``problem.interrupted``: Python would raise KeyboardInterrupt at
-    whatever Python line runs next, which inside CasADi's own callback glue (outside ``_guarded``) IPOPT takes for a
-    failed evaluation and carries on (measured: a Ctrl-C swallowed, the fit finished 17 s later). The flag stops the
-    next simulation (``OutputError.residuals``) and ``fit_ipopt`` raises KeyboardInterrupt once IPOPT returns.
-    Outside the main thread (Dask workers) signals are not ours to handle: nothing changes."""
+    """While IPOPT runs, Ctrl-C (SIGINT) and SIGTERM only set ``problem.interrupted`` (the signal's number; a signal
+    the process ignores stays ignored): Python would raise at whatever Python line runs next, which inside CasADi's
+    own callback glue (outside ``_guarded``) IPOPT takes for a failed evaluation and carries on (measured: a Ctrl-C
+    swallowed, the fit finished 17 s later; a SIGTERM likewise, exit 0). The flag stops the next simulation
+    (``OutputError.residuals``) and ``fit_ipopt`` delivers the signal again once IPOPT returns
+    (``_reraise_interrupt``). Outside the main thread (Dask workers) signals are not ours to handle."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
     def flag(signum: int, frame: Any) -> None:
-        problem.interrupted = True
+        problem.interrupted = signum
 
-    previous = signal.signal(signal.SIGINT, flag)
+    previous = {sig: signal.signal(sig, flag) for sig in (signal.SIGINT, signal.SIGTERM)
+                if signal.getsignal(sig) is not signal.SIG_IGN}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def _residual_callback(problem: OutputError, n: int, m: int) -> Any:
@@ -431,9 +434,13 @@ def c_stdout(to_stderr: bool) -> Iterator[None]:
 
 
 def _reraise_interrupt(problem: OutputError) -> None:
-    if getattr(problem, "interrupted", False):
+    """A signal that arrived while IPOPT ran (``_sigint_flag``), delivered again now that the caller's handlers are
+    back: KeyboardInterrupt for SIGINT, whatever the caller does with SIGTERM (the CLI: exit 143)."""
+    signum = getattr(problem, "interrupted", False)
+    if signum:
         problem.interrupted = False
-        raise KeyboardInterrupt
+        signal.raise_signal(signal.SIGINT if signum is True else signum)
+        raise KeyboardInterrupt   # a caller that ignores the signal still gets no half-finished fit
 
 
 def information_inverse(info: np.ndarray) -> np.ndarray:
