@@ -262,8 +262,8 @@ def _guarded(problem: OutputError, fn: Callable[[np.ndarray], np.ndarray], arg: 
     if not (problem.interrupted or problem.exhausted):
         try:
             return fn(np.array(arg).ravel())
-        except KeyboardInterrupt:
-            problem.interrupted = True
+        except KeyboardInterrupt:  # keeps the number of a signal flagged meanwhile (SIGTERM stays SIGTERM)
+            problem.interrupted = problem.interrupted or True
         except BudgetExceeded:  # the same clean stop as an interrupt; ``fit_ipopt`` raises it once IPOPT returns
             pass
         except (PlantError, ParameterError):  # a point the FMU cannot simulate: NaN, and IPOPT steps back
