@@ -73,11 +73,13 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="hdrive-bench-interrupts-"))
     log = make_log(work)
     rows = []
-    for name, argv in commands(log, work / "out").items():
+    runs = 0
+    for name in commands(log, work / "out"):
         for sig in (signal.SIGINT, signal.SIGTERM):
             for delay in args.delays:
                 for _ in range(args.repeat):
-                    row = one(name, argv, sig, delay, work)
+                    runs += 1   # a fresh --out per run: a finished run's folder must not count for the next
+                    row = one(name, commands(log, work / f"out{runs}")[name], sig, delay, work)
                     rows.append(row)
                     print(f"{name:9s} {row['signal']:7s} after {delay:4.1f} s: exit {row['exit']:4d} in "
                           f"{row['latency_s']:6.2f} s, left {row['left_behind'] or 'nothing'}; {row['last_line']}",

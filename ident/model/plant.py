@@ -27,7 +27,8 @@ _UNPACKED: set[str] = set()   # folders of unpacked FMUs still in use: removed a
 
 
 @atexit.register
-def _remove_unpacked() -> None:
+def remove_unpacked_fmus() -> None:
+    """Remove the folders of unpacked FMUs still in use (at exit, and before a fast exit that skips ``atexit``)."""
     for folder in list(_UNPACKED):
         shutil.rmtree(folder, ignore_errors=True)
 
