@@ -307,7 +307,9 @@ def cmd_diagnose(args: argparse.Namespace) -> dict:
                     budget=args.candidate_budget if args.candidate_budget > 0 else None)
     out = diag.to_dict()
     if not args.json:
-        print(diag.to_frame().to_string(index=False))
+        steps = diag.to_frame()   # the per-step table; the screens' detail is in the report and the JSON
+        print(steps.drop(columns=[c for c in ("screen", "effects") if c in steps], errors="ignore")
+              .to_string(index=False, float_format=lambda v: f"{v:.4g}"))
         for line in diag.summary:
             print(line)
         if diag.files.get("report"):
