@@ -151,7 +151,7 @@ def outcome(params: DriveParams, fmi_version: int, run) -> tuple:  # noqa: ANN00
 @pytest.mark.parametrize("what", ["setter refuses", "doStep refuses", "no rest", "PD does not settle"])
 def test_errors_are_the_python_loops_errors(what: str, fmi_version: int) -> None:
     low = DriveParams().with_values(f_l_star=0.01)
-    stiff = DriveParams().with_values(b_m=1e6)   # RK4 substeps of 2e-12 s: the FMU refuses a 1 ms step
+    stiff = DriveParams().with_values(b_m=1e6)   # substeps of 5e-12 s: the FMU refuses a 1 ms step
     runs = {
         "setter refuses": (low, lambda p, loop: impulse_experiment(p, 1e9, 3, loop=loop)),
         "doStep refuses": (stiff, lambda p, loop: impulse_experiment(p, 3.0, 3, loop=loop)),

@@ -11,9 +11,10 @@
  *
  * Optional effects (parameters vr 100+, all off by default): viscous friction b_m, b_l (direction-dependent
  * with viscous_asymmetry); Stribeck and asymmetric friction; a hardening spring K_s (d + hardening d^3); a Dahl
- * hysteresis element z in parallel with the spring; a kinematic error d = r q_m + A sin(2 q_m + phi) - q_l. With any of them on, the same Karnopp stick-slip is
- * propagated by a fixed-substep RK4 with the friction / hysteresis modes held inside each substep and events
- * located by bisection (model.c, "general propagator").
+ * hysteresis element z in parallel with the spring; a kinematic error d = r q_m + A sin(2 q_m + phi) - q_l. With
+ * any of them on, the same Karnopp stick-slip is propagated by a fixed-substep sixth-order Runge-Kutta method with
+ * the friction / hysteresis modes held inside each substep and events located to the last bit (model.c, "general
+ * propagator").
  *
  * All the state of one instance lives in HDModel: no globals, instances are independent, and copying the struct
  * copies the complete simulation state (used for FMU state get/set/serialize).
@@ -55,7 +56,7 @@ typedef struct {
     double q_m, q_l, v_m, v_l;
     int32_t motor_stuck, load_stuck;   /* 1 while the body sticks (its velocity is then exactly 0) */
     int32_t motor_dir, load_dir;       /* +1 / -1: slip direction while slipping */
-    double input_work, friction_work;  /* [J], accumulated exactly per segment (RK4 quadrature with effects) */
+    double input_work, friction_work;  /* [J], accumulated exactly per segment (quadrature with effects) */
     double hysteresis_state;           /* z [N m] of the Dahl element (also an output) */
     int32_t hyst_dir;                  /* +1 / -1: direction of twisting on the current hysteresis branch */
     double hyst_d0, hyst_z0;           /* branch anchor: deflection and z where the branch started */
@@ -104,7 +105,7 @@ HDStatus hd_snapshot_read(const unsigned char *bytes, size_t size, HDSnapshot *s
 HDStatus hd_snapshot_check(const HDSnapshot *s, char *err, size_t errlen);
 
 /* Work budget of one doStep, in evaluations of the model's equations (one closed-form state evaluation, or one
- * right-hand side of the general propagator: an RK4 substep is four). It bounds the CPU time of every doStep, for any
+ * right-hand side of the general propagator: a substep is seven). It bounds the CPU time of every doStep, for any
  * step size and any state that passed the checks; see model.c, "work budget". */
 #define HD_WORK_BUDGET 2000000LL
 

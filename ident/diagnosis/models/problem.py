@@ -17,7 +17,7 @@ from ...model.params import DriveParams
 from ...model.plant import Plant
 from .coordinates import Coord, LogScales, coordinates, fmu_values
 
-#: switches the FMU's general (RK4) propagator on without changing the physics: the viscous asymmetry only scales a
+#: switches the FMU's general (Runge-Kutta) propagator on without changing the physics: the viscous asymmetry only scales a
 #: viscous coefficient, and there is none. The screen compares a candidate's simulation with the current model's
 #: through the same propagator, so that the difference is the effect's alone.
 SAME_PROPAGATOR = {"viscous_asymmetry": 0.5}
