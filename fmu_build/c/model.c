@@ -861,9 +861,12 @@ static FxState fx_rk6(const HDModel *m, const FxState *y, double h) {
     FxState k[7];
     k[0] = fx_deriv(m, y);
     for (int i = 1; i < 7; ++i) {
-        FxState yi = *y;
-        for (int j = 0; j < i; ++j)
-            if (RK6_A[i][j] != 0.0) yi = fx_axpy(&yi, h * RK6_A[i][j], &k[j]);
+        FxState yi = *y; /* the stages need positions and velocities only: the works are quadratures */
+        for (int j = 0; j < i; ++j) {
+            double c = h * RK6_A[i][j];
+            if (c == 0.0) continue;
+            yi.q_m += c * k[j].q_m, yi.q_l += c * k[j].q_l, yi.v_m += c * k[j].v_m, yi.v_l += c * k[j].v_l;
+        }
         k[i] = fx_deriv(m, &yi);
     }
     FxState out = *y;
@@ -966,19 +969,26 @@ static double fx_bisect(const HDModel *m, const FxState *y0, double t, double le
     return hi;
 }
 
-/* Substep length for a communication step h: HD_SUBSTEPS_PER_PERIOD per period of the stiffest oscillation (tangent
- * stiffness at the step start, largest gear factor r + 2A), at most HD_DECAY_FRACTION of each viscous time constant
- * J / (b (1 + |a_v|)).
- * (Stribeck friction is stiff only while a body is slow: fx_local_substep limits the substeps then.) */
-static HDStatus fx_substep(const HDModel *m, double h, double *h_sub, char *err, size_t errlen) {
-    FxSpring s = fx_spring(m, m->q_m, m->q_l);
-    double K = m->K_s * (1.0 + 3.0 * m->hardening * s.d * s.d)
+/* Longest substep for the bodies that slip: HD_SUBSTEPS_PER_PERIOD per period of their stiffest oscillation (tangent
+ * stiffness at the twist d, largest gear factor r + 2A; a stuck body takes no part, the other rings against the spring
+ * alone), at most HD_DECAY_FRACTION of a slipping body's viscous time constant J / (b (1 + |a_v|)). */
+static double mode_substep(const HDModel *m, double d, int motor_slips, int load_slips) {
+    double K = m->K_s * (1.0 + 3.0 * m->hardening * d * d)
              + (m->hysteresis_torque > 0.0 ? m->hysteresis_stiffness : 0.0);
     double G = m->r + 2.0 * m->kinematic_error;
-    double h_max = 2.0 * HD_PI / sqrt(K * (G * G / m->J_m + 1.0 / m->J_l)) / HD_SUBSTEPS_PER_PERIOD;
+    double w2 = K * ((motor_slips ? G * G / m->J_m : 0.0) + (load_slips ? 1.0 / m->J_l : 0.0));
+    double h_max = 2.0 * HD_PI / sqrt(w2) / HD_SUBSTEPS_PER_PERIOD;
     double va = 1.0 + fabs(m->viscous_asymmetry); /* the larger of the two directions' viscous coefficients */
-    if (m->b_m > 0.0) h_max = fmin(h_max, HD_DECAY_FRACTION * m->J_m / (m->b_m * va));
-    if (m->b_l > 0.0) h_max = fmin(h_max, HD_DECAY_FRACTION * m->J_l / (m->b_l * va));
+    if (motor_slips && m->b_m > 0.0) h_max = fmin(h_max, HD_DECAY_FRACTION * m->J_m / (m->b_m * va));
+    if (load_slips && m->b_l > 0.0) h_max = fmin(h_max, HD_DECAY_FRACTION * m->J_l / (m->b_l * va));
+    return h_max;
+}
+
+/* Substep length for a communication step h: the longest one with both bodies slipping, at the step start (the
+ * shortest of the modes; fx_local_substep lengthens it while a body is stuck and shortens it through transients).
+ * (Stribeck friction is stiff only while a body is slow: fx_local_substep limits the substeps then.) */
+static HDStatus fx_substep(const HDModel *m, double h, double *h_sub, char *err, size_t errlen) {
+    double h_max = mode_substep(m, fx_spring(m, m->q_m, m->q_l).d, 1, 1);
     if (h == 0.0) {
         *h_sub = 0.0;
         return HD_OK;
@@ -1007,24 +1017,27 @@ static double stribeck_cap(double cap, double v, double a, double vs, double h_s
     return cap;
 }
 
-/* Shorter substeps while a fast transient is under way (rate * substep <= HD_TRANSIENT_RESOLUTION): a body in or
- * entering its Stribeck range, and a hysteresis branch not yet saturated, which relaxes at sigma |dd| / H. */
+/* The substep from here: longer than the step's h_sub while a body is stuck (mode_substep of the other one alone),
+ * shorter while a fast transient is under way (rate * substep <= HD_TRANSIENT_RESOLUTION): a body in or entering its
+ * Stribeck range, and a hysteresis branch not yet saturated, which relaxes at sigma |dd| / H. */
 static double fx_local_substep(const HDModel *m, double h_sub) {
-    double cap = h_sub;
     FxState y = fx_state(m);
     FxForces f = fx_forces(m, &y);
+    double cap = m->motor_stuck || m->load_stuck /* one body rings alone: a lower frequency */
+               ? fmax(h_sub, mode_substep(m, f.s.d, !m->motor_stuck, !m->load_stuck)) : h_sub;
+    const double look = cap; /* how far ahead the transients are judged */
     if (m->stribeck_ratio > 0.0) {
         double k = (1.0 + fabs(m->friction_asymmetry)) * m->stribeck_ratio * sqrt(2.0 / exp(1.0));
         double vs_m = m->stribeck_velocity / m->r, vs_l = m->stribeck_velocity;
         if (!m->motor_stuck && m->f_m > 0.0)
-            cap = stribeck_cap(cap, m->v_m, f.a_m, vs_m, h_sub, k * m->f_m / (m->J_m * vs_m));
+            cap = stribeck_cap(cap, m->v_m, f.a_m, vs_m, look, k * m->f_m / (m->J_m * vs_m));
         if (!m->load_stuck && m->f_l > 0.0)
-            cap = stribeck_cap(cap, m->v_l, f.a_l, vs_l, h_sub, k * m->f_l / (m->J_l * vs_l));
+            cap = stribeck_cap(cap, m->v_l, f.a_l, vs_l, look, k * m->f_l / (m->J_l * vs_l));
     }
     double H = m->hysteresis_torque;
     if (H > 0.0 && fabs(m->hyst_dir * H - f.s.z) > 1e-13 * H) {
         double v_m = m->motor_stuck ? 0.0 : m->v_m, v_l = m->load_stuck ? 0.0 : m->v_l;
-        double dd = fabs(f.s.g * v_m - v_l) + fabs(f.s.g * f.a_m - f.a_l) * h_sub;
+        double dd = fabs(f.s.g * v_m - v_l) + fabs(f.s.g * f.a_m - f.a_l) * look;
         double rate = m->hysteresis_stiffness * dd / H;
         if (rate * cap > HD_TRANSIENT_RESOLUTION) cap = HD_TRANSIENT_RESOLUTION / rate;
     }
