@@ -826,15 +826,27 @@ static int state_finite(const HDModel *m) {
  * with RK4, with this one better (hysteresis state 9.0e-12 against 2.7e-11 N.m). */
 #define HD_DECAY_FRACTION 0.25
 #define HD_TRANSIENT_RESOLUTION 0.16
-#define HD_STEP_WORK 7      /* model evaluations of one step of the method */
-#define HD_SUBSTEP_WORK 10.0 /* model evaluations of one substep without events (counted in fx_do_step) */
+#define HD_STEP_WORK 6      /* model evaluations of one step of the method (its first stage is the substep's) */
+#define HD_SUBSTEP_WORK 9.0 /* model evaluations of one substep without events (counted in fx_do_step) */
+
+/* The state's derivative from the forces in that state. */
+static FxState fx_deriv_of(const HDModel *m, const FxState *y, const FxForces *f) {
+    double v_m = m->motor_stuck ? 0.0 : y->v_m, v_l = m->load_stuck ? 0.0 : y->v_l;
+    FxState dy = {v_m, v_l, f->a_m, f->a_l, m->motor_torque * v_m, f->F_m * v_m + f->F_l * v_l};
+    return dy;
+}
 
 static FxState fx_deriv(const HDModel *m, const FxState *y) {
     FxForces f = fx_forces(m, y);
-    double v_m = m->motor_stuck ? 0.0 : y->v_m, v_l = m->load_stuck ? 0.0 : y->v_l;
-    FxState dy = {v_m, v_l, f.a_m, f.a_l, m->motor_torque * v_m, f.F_m * v_m + f.F_l * v_l};
-    return dy;
+    return fx_deriv_of(m, y, &f);
 }
+
+/* A substep's start: its state, the derivative there (the first stage of every step from it), its place in the
+ * communication step and its length. */
+typedef struct {
+    FxState y0, k0;
+    double t, len;
+} FxStart;
 
 static FxState fx_axpy(const FxState *y, double c, const FxState *k) {
     FxState r = {y->q_m + c * k->q_m, y->q_l + c * k->q_l, y->v_m + c * k->v_m, y->v_l + c * k->v_l,
@@ -856,10 +868,12 @@ static const double RK6_A[7][6] = {
 };
 static const double RK6_B[7] = {11.0 / 120, 0.0, 27.0 / 40, 27.0 / 40, -4.0 / 15, -4.0 / 15, 11.0 / 120};
 
-/* One step of length h of the sixth-order method with the modes of m held; a stuck body keeps its state bit for bit. */
-static FxState fx_rk6(const HDModel *m, const FxState *y, double h) {
+/* One step of length h of the sixth-order method from the substep start with the modes of m held; a stuck body keeps
+ * its state bit for bit. */
+static FxState fx_rk6(const HDModel *m, const FxStart *st, double h) {
+    const FxState *y = &st->y0;
     FxState k[7];
-    k[0] = fx_deriv(m, y);
+    k[0] = st->k0;
     for (int i = 1; i < 7; ++i) {
         FxState yi = *y; /* the stages need positions and velocities only: the works are quadratures */
         for (int j = 0; j < i; ++j) {
@@ -944,17 +958,16 @@ static double falsi_trial(double lo, double hi, double g_lo, double g_hi, int ha
  * hundred ulps are halved), each at least 16 ulps inside the bracket, until it is 32 ulps wide, then halved; every
  * bracket update is decided by fx_fires_at alone, so the result is a fraction that fires next to one that does not,
  * as with plain halving. */
-static double fx_bisect(const HDModel *m, const FxState *y0, double t, double len, const FxEvent *e, Work *work,
-                        double g1) {
-    double lo = 0.0, hi = 1.0, g_lo = fx_value(m, e, y0), g_hi = g1;
+static double fx_bisect(const HDModel *m, const FxStart *st, const FxEvent *e, Work *work, double g1) {
+    double lo = 0.0, hi = 1.0, g_lo = fx_value(m, e, &st->y0), g_hi = g1, t = st->t;
     int side = 0;
     for (int i = 0; i < 200; ++i) {
         double mid = lo + 0.5 * (hi - lo);
         if (mid <= lo || mid >= hi) break;
         double trial = falsi_trial(lo, hi, g_lo, g_hi, i >= 60);
-        if (t + trial * len == t) { lo = trial; continue; }
+        if (t + trial * st->len == t) { lo = trial; continue; }
         work->used += HD_STEP_WORK + 1; /* a step of the method and the event function */
-        FxState y = fx_rk6(m, y0, trial * len);
+        FxState y = fx_rk6(m, st, trial * st->len);
         double g = fx_value(m, e, &y);
         if (fx_fires_at(e, g)) {
             hi = trial, g_hi = g;
@@ -1020,9 +1033,8 @@ static double stribeck_cap(double cap, double v, double a, double vs, double h_s
 /* The substep from here: longer than the step's h_sub while a body is stuck (mode_substep of the other one alone),
  * shorter while a fast transient is under way (rate * substep <= HD_TRANSIENT_RESOLUTION): a body in or entering its
  * Stribeck range, and a hysteresis branch not yet saturated, which relaxes at sigma |dd| / H. */
-static double fx_local_substep(const HDModel *m, double h_sub) {
-    FxState y = fx_state(m);
-    FxForces f = fx_forces(m, &y);
+static double fx_local_substep(const HDModel *m, double h_sub, const FxForces *forces) {
+    const FxForces f = *forces; /* in the current state */
     double cap = m->motor_stuck || m->load_stuck /* one body rings alone: a lower frequency */
                ? fmax(h_sub, mode_substep(m, f.s.d, !m->motor_stuck, !m->load_stuck)) : h_sub;
     const double look = cap; /* how far ahead the transients are judged */
@@ -1080,28 +1092,32 @@ static HDStatus fx_do_step(HDModel *w, double h, double t0, Work *work, HDStepSt
     if (fx_substep(w, h, &h_sub, err, errlen) != HD_OK) return HD_ERROR;
     double t = 0.0;
     while (t < h && !(w->motor_stuck && w->load_stuck)) {
-        double cap = fx_local_substep(w, h_sub);
+        FxStart s0;
+        s0.y0 = fx_state(w);
+        FxForces f0 = fx_forces(w, &s0.y0);
+        s0.k0 = fx_deriv_of(w, &s0.y0, &f0);
+        double cap = fx_local_substep(w, h_sub, &f0);
         int last = h - t <= cap * (1.0 + 1e-12);
-        double len = last ? h - t : cap;
-        FxState y0 = fx_state(w), y1 = fx_rk6(w, &y0, len);
+        s0.t = t, s0.len = last ? h - t : cap;
+        FxState y1 = fx_rk6(w, &s0, s0.len);
         FxEvent ev[7];
         int n = fx_events(w, ev), which = -1;
-        work->used += HD_STEP_WORK + 2 + n; /* substep length, the step, commit, every event function at its end */
+        work->used += HD_STEP_WORK + 2 + n; /* the start's forces, the step, commit, every event function at its end */
         double theta = 1.0;
         for (int i = 0; i < n; ++i) {
             double g1 = fx_value(w, &ev[i], &y1);
             if (!fx_fires_at(&ev[i], g1)) continue;
-            double th = fx_bisect(w, &y0, t, len, &ev[i], work, g1);
+            double th = fx_bisect(w, &s0, &ev[i], work, g1);
             if (which < 0 || th < theta) theta = th, which = i;
         }
         if (which < 0) {
             fx_commit(w, &y1);
-            t = last ? h : t + len;
+            t = last ? h : t + s0.len;
         } else {
-            FxState y = fx_rk6(w, &y0, theta * len);
+            FxState y = fx_rk6(w, &s0, theta * s0.len);
             work->used += HD_STEP_WORK + 3; /* the step to the event, its commit and the new decisions */
             fx_commit(w, &y);
-            t += theta * len; /* > t: fx_bisect never returns a fraction that leaves the clock where it was */
+            t += theta * s0.len; /* > t: fx_bisect never returns a fraction that leaves the clock where it was */
             if (ev[which].kind == FX_MOTOR_VELOCITY) w->v_m = 0.0;
             if (ev[which].kind == FX_LOAD_VELOCITY) w->v_l = 0.0;
             fx_settle(w);
