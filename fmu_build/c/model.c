@@ -1046,12 +1046,15 @@ static double fx_local_substep(const HDModel *m, double h_sub, const FxForces *f
         if (!m->load_stuck && m->f_l > 0.0)
             cap = stribeck_cap(cap, m->v_l, f.a_l, vs_l, look, k * m->f_l / (m->J_l * vs_l));
     }
-    double H = m->hysteresis_torque;
-    if (H > 0.0 && fabs(m->hyst_dir * H - f.s.z) > 1e-13 * H) {
+    double H = m->hysteresis_torque, left = fabs(m->hyst_dir * H - f.s.z); /* the transient's torque still to come */
+    if (H > 0.0 && left > 1e-13 * H) {
         double v_m = m->motor_stuck ? 0.0 : m->v_m, v_l = m->load_stuck ? 0.0 : m->v_l;
         double dd = fabs(f.s.g * v_m - v_l) + fabs(f.s.g * f.a_m - f.a_l) * look;
         double rate = m->hysteresis_stiffness * dd / H;
-        if (rate * cap > HD_TRANSIENT_RESOLUTION) cap = HD_TRANSIENT_RESOLUTION / rate;
+        /* A step's error from a transient grows as its torque times (rate h)^7: a transient of torque `left` on top
+         * of the load's torque scale F may take (F / left)^(1/7) times the resolution of a full-size one. */
+        double F = H + m->f_l + fabs(f.s.tau), resolution = HD_TRANSIENT_RESOLUTION * fmax(1.0, pow(F / left, 1.0 / 7));
+        if (rate * cap > resolution) cap = resolution / rate;
     }
     return fmax(cap, 1e-4 * h_sub); /* bounded work per step */
 }
