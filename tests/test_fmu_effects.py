@@ -564,6 +564,24 @@ def test_all_effects_against_scipy_reference(fmi: int) -> None:
     assert err_z < 1e-8 * p.hysteresis_torque  # measured: 2.7e-11 N.m with RK4, 9.0e-12 with the sixth-order method
 
 
+@pytest.mark.parametrize("hysteresis_torque", [3e-4, 3e-5])
+def test_small_hysteresis_against_scipy_reference(hysteresis_torque: float) -> None:
+    """A hysteresis torque 10-100 times below the others: its branch transients are taken with longer substeps
+    (their error scales with the torque still to come), and the trajectory still matches the independent
+    integrator within the full-size case's bounds (z to 1e-8 of the load's torques: 5.5e-13 N.m at 3e-5, as with
+    the fixed resolution before)."""
+    p = NOMINAL.with_values(**{**ALL_ON, "hysteresis_torque": hysteresis_torque})
+    dt = 2e-4
+    u = pulse_train(p, dt, 0.16)
+    with Plant(p, q_l_start=Q_L_EQ) as plant:
+        out = traj(plant, u, dt, ("q_m", "q_l", "v_m", "v_l", "hysteresis_state"))
+    ref = Reference(p, q_l=Q_L_EQ)
+    got = np.array([ref.y.copy()] + [ref.advance(T, dt) for T in u])
+    assert np.ptp(out[:, 4]) > hysteresis_torque  # the element reverses
+    assert np.max(np.abs(out[:, 0] - got[:, 0])) < 1e-10 and np.max(np.abs(out[:, 1] - got[:, 1])) < 1e-12
+    assert np.max(np.abs(out[:, 4] - got[:, 4])) < 1e-8 * (hysteresis_torque + p.f_l)  # of the load's torques
+
+
 # ---------------------------------------------------------------------------- 9. exact stick-slip kept ------------
 
 @pytest.mark.parametrize("wound", [False, True])
