@@ -710,7 +710,10 @@ static double locate(const HDModel *m, const Segment *s, const EventFn *e, const
 
 /* First time in (0, h] at which the event fires, or -1 if it does not fire in the segment. */
 static double first_firing(const HDModel *m, const Segment *s, const EventFn *e, double h) {
-    double w = s->w, R = hypot(e->C, e->S), b = e->b;
+    double b = e->b, reach = e->a + (b > 0.0 ? b * h : 0.0) + fabs(e->C) + fabs(e->S); /* >= G on (0, h] */
+    if (reach < -1e-9 * (fabs(e->a) + fabs(b) * h + fabs(e->C) + fabs(e->S)))
+        return -1.0; /* far from firing: a margin a billion times the rounding of G's terms */
+    double w = s->w, R = hypot(e->C, e->S);
     Flank f = {R, R > 0.0 ? atan2(e->S, e->C) : 0.0};
     if (!(R > 0.0) || !(w > 0.0) || R * w <= fabs(b)) { /* G monotone over the whole segment */
         return fires(m, s, e, h) ? locate(m, s, e, &f, 0.0, h) : -1.0;
