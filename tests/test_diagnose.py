@@ -85,6 +85,22 @@ def test_screen_bounded_parameters_and_grids():
     assert t.p_value == pytest.approx(3 * 0.5 * stats.chi2.sf(30.0, 1))
 
 
+def test_hysteresis_coordinates_stay_in_the_fmus_range():
+    """A tiny hysteresis torque over the widest saturation deflection asked the FMU for a stiffness below its range
+    (matrix log 5216 stopped with a ParameterError); the range's end now stands for it, everywhere on the box."""
+    from ident.diagnosis.models.coordinates import LogScales, coordinates, fmu_values
+    from ident.model.effects import EFFECTS
+
+    lo, hi = next((f.lo, f.hi) for f in EFFECTS["hysteresis"].fit_vars if f.param == "hysteresis_stiffness")
+    fields = LogScales.__dataclass_fields__
+    scales = LogScales(**{k: (1e-5 if k == "d95" else (0.1, 1.0) if "percentiles" in k else 1.0) for k in fields})
+    coords = coordinates("hysteresis", scales)
+    for x_h in (1e-12, 1e-6, 1.0, coords[0].hi):
+        for x_s in (coords[1].lo, 0.0, coords[1].hi):
+            v = fmu_values("hysteresis", coords, np.array([x_h, x_s]))
+            assert lo <= v["hysteresis_stiffness"] <= hi, (x_h, x_s, v)
+
+
 def test_acceptance_rule():
     """Held-back gain, Diebold-Mariano and BIC: a model that predicts the held-back data better by a margin passes,
     one that only fits noise does not."""

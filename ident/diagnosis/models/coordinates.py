@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...model.effects import EFFECTS
 from ...model.params import DriveParams
 
 #: effects of the two-inertia model, in the library's order
@@ -128,6 +129,9 @@ def _coordinates(name: str, s: LogScales) -> tuple[Coord, ...]:
     return table[name]
 
 
+_STIFFNESS_RANGE = next((f.lo, f.hi) for f in EFFECTS["hysteresis"].fit_vars if f.param == "hysteresis_stiffness")
+
+
 def fmu_values(name: str, coords: tuple[Coord, ...], x: np.ndarray) -> dict[str, float]:
     """The FMU parameters of effect ``name`` at coordinates ``x``."""
     v = {c.name: c.value(float(xi)) for c, xi in zip(coords, x)}
@@ -135,9 +139,12 @@ def fmu_values(name: str, coords: tuple[Coord, ...], x: np.ndarray) -> dict[str,
         return {"stribeck_ratio": v["stribeck_ratio"], "stribeck_velocity": v["ln_stribeck_velocity"]}
     if name == "hysteresis":
         H = v["hysteresis_torque"]
-        # H = 0 is the element off; its stiffness is then irrelevant (any value in the FMU's range)
+        # H = 0 is the element off; its stiffness is then irrelevant (any value in the FMU's range). A tiny H over a
+        # wide saturation deflection asks for a stiffness below the FMU's range (log 5216 of the diagnosis matrix):
+        # the range's end then stands for it (the element is negligible there either way).
+        lo, hi = _STIFFNESS_RANGE
         return {"hysteresis_torque": H,
-                "hysteresis_stiffness": H / v["ln_saturation_deflection"] if H > 0 else 1.0}
+                "hysteresis_stiffness": min(max(H / v["ln_saturation_deflection"], lo), hi) if H > 0 else 1.0}
     if name == "kinematic_error":
         c, s = v["kinematic_c"], v["kinematic_s"]
         return {"kinematic_error": math.hypot(c, s), "kinematic_error_phase": math.atan2(s, c)}
