@@ -34,8 +34,7 @@
  * An event inside a substep (a slipping body's velocity reaching 0 - with Coulomb friction or an asymmetric viscous
  * term -, a stuck body's N leaving its band, dd changing sign) is located to the last bit on the substep fraction
  * (regula falsi, then halving), each trial being one step of the method from the substep start; that very state is
- * committed and the
- * modes are re-decided from it (no Zeno loops).
+ * committed and the modes are re-decided from it (no Zeno loops).
  *
  * Both paths count their work: every doStep does at most HD_WORK_BUDGET evaluations of the model's equations and
  * every event advances time, so each call returns within a bounded CPU time for any step size and any state, or is

@@ -35,9 +35,9 @@ __all__ = ["CHUNK_STEPS", "LOOPS", "LoopStats", "Stopped", "check_loop", "loop_s
 
 LOOPS = ("compiled", "python")
 # doSteps per call into C between returns to Python (counted work, never time). A closed-form doStep costs a few us,
-# an effects-on (Runge-Kutta) doStep of a 20 ms rest poll while the load rings up to ~0.3 ms (hysteresis at f_l* = 0.01):
-# a chunk is a few ms, at worst ~0.15 s (the Ctrl-C latency, bench/protocols.py), while a return to Python (~5 us)
-# is negligible against it.
+# an effects-on (Runge-Kutta) doStep of a 20 ms rest poll while the load rings up to ~0.3 ms (hysteresis at
+# f_l* = 0.01): a chunk is a few ms, at worst ~0.15 s (the Ctrl-C latency, bench/protocols.py), while a return to
+# Python (~5 us) is negligible against it.
 CHUNK_STEPS = 512
 
 _FAIL_SET, _FAIL_STEP, _FAIL_GET, _FAIL_SETTLE = 1, 2, 3, 4

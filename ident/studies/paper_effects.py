@@ -553,8 +553,8 @@ smooth. The base model does not reproduce either (see the study report: the medi
 motor's own breakaway, load friction only adds bounded scatter). Here each effect of the library is added to the
 nominal drive at realistic magnitudes and the impulse protocol is rerun at {len(sweep.f_l_star)} levels f_l\\* =
 {lo:.3g} ... {hi:.3g} (N = {n} pulses per experiment, eps1 = 0.1 µm, eps2 = 0.01; fewer than the paper's 25 x 1000
-because with effects on the FMU integrates with a Runge-Kutta method instead of its closed form). Nothing is tuned to the paper's
-figures.
+because with effects on the FMU integrates with a Runge-Kutta method instead of its closed form). Nothing is tuned
+to the paper's figures.
 
 Criteria. **Linear growth**: the least-squares line max = slope f_l\\* + intercept rises, has R^2 >= {LINEAR_R2:g},
 and the max at f_l\\* = {hi:.3g} is at least {LINEAR_GROWTH:g}x the max at f_l\\* = {lo:.3g}. **Avalanche**: at

@@ -17,9 +17,9 @@ from ...model.params import DriveParams
 from ...model.plant import Plant
 from .coordinates import Coord, LogScales, coordinates, fmu_values
 
-#: switches the FMU's general (Runge-Kutta) propagator on without changing the physics: the viscous asymmetry only scales a
-#: viscous coefficient, and there is none. The screen compares a candidate's simulation with the current model's
-#: through the same propagator, so that the difference is the effect's alone.
+#: switches the FMU's general (Runge-Kutta) propagator on without changing the physics: the viscous asymmetry only
+#: scales a viscous coefficient, and there is none. The screen compares a candidate's simulation with the current
+#: model's through the same propagator, so that the difference is the effect's alone.
 SAME_PROPAGATOR = {"viscous_asymmetry": 0.5}
 #: a fit stalls when its best cost has not fallen by more than this (relative) over ``stall_after`` simulations: the
 #: cost of an exact stick-slip model has kinks where a marginal event flips, and IPOPT's line search can spend a
