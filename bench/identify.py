@@ -147,15 +147,17 @@ def main(argv: list[str] | None = None) -> dict:
                   + f" sig {r['sigma_ratio']:.3f} ron {r['residual_over_noise']:.3f} {r['wall_s']:.1f} s "
                     f"(cpu {r['cpu_s']:.1f} s)"),
                   flush=True)
-        result.update(suite=rows, summary=summarize(rows))
-        if args.speed:
-            result["speed"] = speed(cases[: args.speed], Path(tmp))
+        if rows:
+            result.update(suite=rows, summary=summarize(rows))
+        if args.speed:  # the suite's first drives and excitations, whether or not the suite itself ran
+            result["speed"] = speed(IDENTIFICATION_SLOW_SUITE[: args.speed], Path(tmp))
         if args.memory:
             result["memory"] = memory(Path(tmp))
     result["machine"]["load_average_at_end"] = os.getloadavg()
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=2, default=float))
-    print(json.dumps(result["summary"], indent=2, default=float))
+    if "summary" in result:
+        print(json.dumps(result["summary"], indent=2, default=float))
     if "speed" in result:
         print(f"speed: median {result['speed']['median_s']:.1f} s, max {result['speed']['max_s']:.1f} s "
               f"(targets 10 / 30 s)")

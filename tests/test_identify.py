@@ -276,3 +276,32 @@ def test_many_logs_at_once_on_dask(tmp_path: Path) -> None:
     table = pd.read_csv(tmp_path / "table" / "identify.csv")
     assert len(table) == 3 and {"log", "K_star", "K_star_ci95_lo", "identifiable", "warnings"} <= set(table)
     assert "logs identified" in proc.stderr   # the progress bar
+
+
+def test_noise_estimate_ignores_a_ringing_misfit_and_jumps() -> None:
+    """The one load-noise estimate (``noise.residual_noise_std``) on white noise, on white noise under a residual
+    ringing at 3 % of the sample rate 300x its level (a fit trapped on the wrong frequency: the first differences
+    alone read 30x), and under a few jumps (mistimed breakaways): within 5 % each time."""
+    from ident.fitting.noise import residual_noise_std
+
+    rng = np.random.default_rng(20261125)
+    n, sigma = 20000, 2e-8
+    white = rng.normal(0.0, sigma, n)
+    ringing = white + 300 * sigma * np.sin(2 * np.pi * 0.03 * np.arange(n))
+    jumps = white + 50 * sigma * (np.arange(n) > n // 3) - 80 * sigma * (np.arange(n) > 2 * n // 3)
+    for r in (white, ringing, jumps):
+        assert residual_noise_std(r) / sigma == pytest.approx(1.0, abs=0.05)
+
+
+def test_spectral_peak_is_never_below_the_band() -> None:
+    """A spectrum that falls off from 0 Hz like a Gaussian has no peak inside the band (> 2 Hz): the largest bin is
+    the band's first, and the parabola through it and the larger bin below has its vertex at 0 Hz. The start read
+    such a vertex (0.007 Hz) on a 10 s chirp and made its first window the whole log; only a local maximum is
+    interpolated now."""
+    from ident.fitting.start import MIN_FREQUENCY_HZ, _peak
+
+    freq = np.arange(0.0, 100.0, 0.5)
+    f = _peak(np.exp(-(freq / 5.0) ** 2), freq)
+    assert f is not None and f > MIN_FREQUENCY_HZ
+    bump = np.exp(-((freq - 40.2) / 3.0) ** 2)   # a local maximum is still interpolated between bins
+    assert _peak(bump, freq) == pytest.approx(40.2, abs=0.05)

@@ -19,13 +19,15 @@ grew with rows x segments, the superlinear memory of issue 21).
 The spectral peak of free ringing is the start's frequency (``frequency_trusted``) when it stands clear of the noise
 (``MIN_CONTRAST``) and either the least-squares frequency agrees with it within ``CONSISTENT_W2`` (``consistent``;
 their disagreement is then the uncertainty the first grid spans, ``w_l2_spread``: a PD log had 1.23 in w_l^2, the
-peak 19 % below the truth) or it comes from several segments over at least two of its periods (``MIN_SEGMENTS``, ``MIN_CONTRAST``, ``MIN_PERIODS``; a pulse train
-every 56 ms on a 17.7 Hz ringing showed a resolution-bound peak at 12.5 Hz; the Savitzky-Golay derivatives lose accuracy below ~16 samples per
-period -- 8.5 samples gave 0.63 of w_l^2 -- while the peak stays right). The least-squares decay is used only when
-consistent; otherwise the first window's grid spans the friction widely. An untrusted peak (one short segment at
-1 kHz read 374 Hz for a 113 Hz ringing) stays one candidate among those below, with the least-squares frequency. When no segment qualifies (a chirp, a log that never lets the motor rest),
-the spectral peaks of the whole load signal and of the torque-to-load transfer ratio are the candidates
-(``candidates_hz``) that the first window's grid scans.
+peak 19 % below the truth) or it comes from several segments over at least two of its periods (``MIN_SEGMENTS``,
+``MIN_CONTRAST``, ``MIN_PERIODS``; a pulse train every 56 ms on a 17.7 Hz ringing showed a resolution-bound peak at
+12.5 Hz; the Savitzky-Golay derivatives lose accuracy below ~16 samples per period -- 8.5 samples gave 0.63 of w_l^2
+-- while the peak stays right). The least-squares decay is used only when consistent; otherwise the first window's
+grid spans the friction widely. An untrusted peak (one short segment at 1 kHz read 374 Hz for a 113 Hz ringing)
+stays one candidate among those below, with the least-squares frequency. When no segment qualifies (a chirp, a log
+that never lets the motor rest), the spectral peaks of the whole log are the candidates (``candidates_hz``,
+``whole_log_candidates``) that the first window's grid scans: the load's velocity and its ratio to the torque; for a
+log without rests (a chirp) first the load's acceleration and that ratio where both stand above the noise.
 """
 from __future__ import annotations
 
@@ -102,7 +104,11 @@ def _peak(power: np.ndarray, freq: np.ndarray) -> float | None:
     if 0 < k < power.size - 1:  # parabolic interpolation of the log-spectrum around the peak bin
         a, b, c = np.log(power[k - 1:k + 2] + 1e-300)
         den = a - 2 * b + c
-        return float((k + (0.5 * (a - c) / den if den < 0 else 0.0)) * (freq[1] - freq[0]))
+        # only at a local maximum (the vertex then lies within half a bin): at the band's lower edge the bin below
+        # (outside the band) can be the larger one, and the vertex then lies anywhere (a 10 s chirp read 0.007 Hz:
+        # its first window became the whole log, 104 s)
+        shift = 0.5 * (a - c) / den if den < 0 and b >= max(a, c) else 0.0
+        return float((k + shift) * (freq[1] - freq[0]))
     return float(freq[k])
 
 
@@ -115,27 +121,67 @@ def dominant_frequency(segments: list[np.ndarray], rate_hz: float) -> float:
     return float(peak if peak is not None else 0.0)
 
 
-def whole_log_candidates(log: DriveLog, count: int = 3) -> list[float]:
-    """Frequencies [Hz] of the ``count`` largest spectral peaks of the detrended load signal, and of the ratio of
-    the load's spectrum to the torque's (a resonance shows there even when the torque never rests)."""
+def whole_log_candidates(log: DriveLog, count: int = 3, rests: bool = True) -> list[float]:
+    """Frequencies [Hz] of the ``count`` largest spectral peaks of the load's velocity and of the ratio of the load's
+    acceleration spectrum to the torque's (a resonance shows there even when the torque never rests); for a log
+    without rests (``rests`` False: fewer than ``MIN_SEGMENTS`` free-ringing segments, e.g. a chirp), first those
+    of the load's acceleration and of the ratio, both only where the load's spectrum stands above its sensor noise
+    (``_above_noise``) and the ratio only where the torque has power (``TORQUE_BAND``).
+
+    Why acceleration without rests: the motion of a body driven by a broadband torque falls off as 1/f^2 (velocity),
+    so a chirp's slow motion hides the resonance in the velocity spectrum (measured: peaks at 10-16 Hz for a 198 Hz
+    mode), while a rigid body's acceleration is flat in the torque and the resonance stands out. Why the bands: the
+    sensor's white noise grows as f^4 in acceleration, and a ratio is noise where the torque has no power (the
+    chirps' unbanded ratio peaked at 0.7-5 kHz, far above their sweeps). Why not for logs with rests: on pulse
+    trains the pulses' own harmonics lead those spectra, and their first windows then started from a scale 20x off
+    (one of the suite's pulse trains ended 35 % off); the velocity peaks and the unbanded ratio have served them."""
     y = log.load_pos_rad - np.polyval(np.polyfit(log.time_s, log.load_pos_rad, 1), log.time_s)
     win = np.hanning(y.size)
     freq = np.fft.rfftfreq(y.size, log.dt)
-    py = np.abs(np.fft.rfft(y * win)) ** 2
-    pu = np.abs(np.fft.rfft((log.motor_torque_Nm - log.motor_torque_Nm.mean()) * win)) ** 2
-    # the load's acceleration over the torque: a resonance is a peak of this ratio (smoothed over 9 bins)
-    ratio = np.convolve(py * freq ** 4, np.ones(9), "same") / (np.convolve(pu, np.ones(9), "same") + 1e-300)
+    py_raw = np.abs(np.fft.rfft(y * win)) ** 2
+    pu_raw = np.abs(np.fft.rfft((log.motor_torque_Nm - log.motor_torque_Nm.mean()) * win)) ** 2
+    py, pu = _smooth(py_raw), _smooth(pu_raw)
+    specs = [py_raw * freq ** 2, _smooth(py_raw * freq ** 4) / (pu + 1e-300)]
+    if not rests:
+        above = _above_noise(py, win, white_noise_std(log.load_pos_rad))
+        accel = np.where(above, py * freq ** 4, 0.0)
+        specs = [accel, np.where(above & (pu >= TORQUE_BAND * pu.max()), accel / (pu + 1e-300), 0.0), specs[0]]
     out: list[float] = []
-    for spec in (py * freq ** 2, ratio):
-        spec = spec.copy()
-        for _ in range(count):
-            f = _peak(spec, freq)
-            if f is None:
-                break
+    for spec in specs:
+        for f in _largest_peaks(spec, freq, count):
             if all(abs(f / g - 1) > 0.05 for g in out):
                 out.append(f)
-            k = int(round(f / (freq[1] - freq[0])))
-            spec[max(0, k - 5):k + 6] = 0.0  # the next peak
+    return out
+
+
+SMOOTH_BINS = 9           # bins over which the whole log's spectra are averaged (a periodogram's bin is chi^2 with 2
+                          # degrees of freedom; 9 bins bring its scatter to +-1/3)
+NOISE_CONTRAST = 10.0     # a smoothed bin counts as motion when it holds 10x the sensor noise's power
+TORQUE_BAND = 1e-3        # a ratio is read only where the torque's power is within 30 dB of its peak
+
+
+def _smooth(power: np.ndarray) -> np.ndarray:
+    return np.convolve(power, np.ones(SMOOTH_BINS) / SMOOTH_BINS, "same")
+
+
+def _above_noise(power: np.ndarray, win: np.ndarray, sigma: float) -> np.ndarray:
+    """The bins of a smoothed periodogram (window ``win``) that hold ``NOISE_CONTRAST`` x the power of white noise
+    of ``sigma`` (sigma^2 x sum(win^2) per bin)."""
+    return power > NOISE_CONTRAST * sigma ** 2 * float(np.sum(win ** 2))
+
+
+def _largest_peaks(spec: np.ndarray, freq: np.ndarray, count: int) -> list[float]:
+    """Frequencies [Hz] of the ``count`` largest peaks of ``spec`` above ``MIN_FREQUENCY_HZ``, each next one outside
+    5 bins of those before."""
+    spec = spec.copy()
+    out = []
+    for _ in range(count):
+        f = _peak(spec, freq)
+        if f is None:
+            break
+        out.append(f)
+        k = int(round(f / (freq[1] - freq[0])))
+        spec[max(0, k - 5):k + 6] = 0.0
     return out
 
 
@@ -185,13 +231,14 @@ def _verdicts(log: DriveLog, segs: list[tuple[int, int]], f_peak: float | None, 
     return consistent, trusted
 
 
-def _candidates(log: DriveLog, f_peak: float | None, w2_ls: float, trusted: bool) -> list[float]:
+def _candidates(log: DriveLog, f_peak: float | None, w2_ls: float, trusted: bool, segments: int) -> list[float]:
     """Frequencies [Hz] for the first window: the trusted peak alone; else the segments' own estimates, then the
-    whole log's peaks. ``StartError`` when there is none (the load never rings)."""
+    whole log's peaks (``segments``: the free-ringing segments found). ``StartError`` when there is none (the load
+    never rings)."""
     own = [f_peak] if f_peak is not None else []
     if not trusted and w2_ls > 0:
         own.append(math.sqrt(w2_ls) / (2 * math.pi))
-    candidates = [f_peak] if trusted else own + whole_log_candidates(log)
+    candidates = [f_peak] if trusted else own + whole_log_candidates(log, rests=segments >= MIN_SEGMENTS)
     if not candidates:
         raise StartError("the load shows no ringing: neither free ringing while the motor rests nor a resonance "
                          "in the whole log; K*, J_l* and f_l* are not excited (apply pulses and let the load ring)")
@@ -215,7 +262,7 @@ def equation_error_start(log: DriveLog, base: DriveParams) -> dict[str, float]:
     consistent, trusted = _verdicts(log, segs, f_peak, contrast, w2_ls)
     # how far the frequency may be off: the two estimates' disagreement (w_l^2), at least 6 % (+-3 % in w_l)
     spread = abs(w2_ls / (2 * math.pi * f_peak) ** 2 - 1) if consistent else 0.0
-    candidates = _candidates(log, f_peak, w2_ls, trusted)
+    candidates = _candidates(log, f_peak, w2_ls, trusted, len(segs))
     f0 = candidates[0]
     out.update(w_l2=(2 * math.pi * f0) ** 2, w_l2_ls=w2_ls, f_peak_hz=f0,
                f_l_over_J_l=f_over_J if consistent and f_over_J > 0 else math.nan,
