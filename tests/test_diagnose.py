@@ -312,3 +312,26 @@ def _alive(pid: int) -> bool:
         return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
     except OSError:
         return False
+
+
+def test_a_candidates_refit_starts_no_worse_than_the_model_it_extends() -> None:
+    """The refit's starts (``two_inertia._heads``): the screen's point, the Gauss-Newton step and that step scaled
+    back to nothing; the last is the current model with the candidate's linear coordinates at 0 (the effect off)
+    and its nonlinear ones where the screen put them, so the best start, and the refit (which returns the best point
+    it simulated), is never worse than the current model. A two-effect log's kinematic-error refit ended at 100x the
+    current model's training cost when only the full step was tried."""
+    from ident.diagnosis.models.coordinates import LogScales, coordinates
+    from ident.diagnosis.models.two_inertia import STEP_FRACTIONS, _heads
+
+    scales = LogScales(v_m=1e-2, v_l=1e-4, d95=1e-6, v_l_percentiles=(1e-5, 3e-5, 1e-4, 3e-4, 1e-3), K_s=10.0,
+                       f_l=1e-4, f_m=1e-3)
+    for name in ("kinematic_error", "stribeck", "hysteresis"):
+        coords = coordinates(name, scales)
+        theta, step = np.array([1.0, 2.0, 3.0, 0.1]), np.array([0.5, -0.5, 0.2, 0.0])
+        x = np.array([0.7 if not c.log else -2.0 for c in coords])
+        heads = _heads(theta, step, x, list(coords))
+        assert len(heads) == 1 + len(STEP_FRACTIONS) and 0.0 in STEP_FRACTIONS and 1.0 in STEP_FRACTIONS
+        off = heads[1 + STEP_FRACTIONS.index(0.0)]
+        assert np.array_equal(off[:4], theta)
+        assert all((v == 0.0) if not c.log else (v == -2.0) for c, v in zip(coords, off[4:]))
+        assert np.array_equal(heads[1 + STEP_FRACTIONS.index(1.0)], np.concatenate([theta + step, x]))
