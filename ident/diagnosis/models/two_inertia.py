@@ -12,7 +12,8 @@
   training part, the Jacobian columns through the FMU: the current unknowns' by central differences, each
   candidate's by a one-sided difference at zero through the same propagator (``problem.SAME_PROPAGATOR``), over the
   grid of its nonlinear coordinate (``coordinates.grid``).
-- **Refit**: from the screen's Gauss-Newton step (the current unknowns and the candidate's), IPOPT on the training
+- **Refit**: from the screen's Gauss-Newton step (the current unknowns and the candidate's), or that step scaled
+  back when it lands higher (down to the current model with the candidate off: ``_heads``), IPOPT on the training
   part; when the current model leans on a parameter bound (it cannot fit the log inside the physical range, so a
   refit from it starts in the wrong basin) the candidate's model is identified from scratch
   (``identify.fit_pipeline``, the screen's step among its first window's starting points). Every fit runs within
