@@ -151,3 +151,22 @@ def test_chirp_whose_resonance_lies_above_its_sweep(tmp_path) -> None:
     fit = identify(log)
     check_log(g, fit, cramer_rao_at_truth(log, g))
     assert fit.identifiable, fit.warnings
+
+
+def test_start_grid_spans_both_frequency_estimates(tmp_path) -> None:
+    """A chirp (seed 4399, 6 s at 2 kHz, 35 free-ringing segments) whose spectral peak reads w_l^2 12 % below the
+    truth and whose least-squares estimate reads 2.5 % below it: the first grid spans from the lower to the higher
+    estimate, each widened by its own +-6 % floor (a span symmetric about the peak ended at the least-squares value
+    and the fit was trapped, 1170x the noise). Found by running the CLI on a log the tool did not make."""
+    from ident.fitting.identify import _frequency_factors
+    from ident.fitting.start import W2_SPREAD
+
+    factors = _frequency_factors({"w_l2": 1.0, "w_l2_ls": 1.13, "consistent": 1.0, "w_l2_spread": 0.13}, 1)
+    assert factors.min() == pytest.approx(1 / (1 + W2_SPREAD))
+    assert factors.max() == pytest.approx(1.13 * (1 + W2_SPREAD))
+    assert np.all(np.diff(np.log(factors)) <= math.log(1.06) + 1e-12)
+    g = identification_case(4399, "chirp", duration_s=6.0)
+    log = read_back(g, tmp_path)
+    fit = identify(log)
+    check_log(g, fit, cramer_rao_at_truth(log, g))
+    assert fit.identifiable, fit.warnings
