@@ -161,7 +161,7 @@ def test_start_grid_spans_both_frequency_estimates(tmp_path) -> None:
     from ident.fitting.identify import _frequency_factors
     from ident.fitting.start import W2_SPREAD
 
-    factors = _frequency_factors({"w_l2": 1.0, "w_l2_ls": 1.13, "consistent": 1.0, "w_l2_spread": 0.13}, 1)
+    factors = _frequency_factors({"w_l2": 1.0, "w_l2_ls": 1.13, "consistent": 1.0}, 1)
     assert factors.min() == pytest.approx(1 / (1 + W2_SPREAD))
     assert factors.max() == pytest.approx(1.13 * (1 + W2_SPREAD))
     assert np.all(np.diff(np.log(factors)) <= math.log(1.06) + 1e-12)

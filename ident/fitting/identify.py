@@ -588,8 +588,9 @@ def _grid(base: DriveParams, start: dict[str, Any], f_hz: float, extras: np.ndar
     """The first window's grid: J_l* over 50..5e4 (the physical box's 10..1e6 narrowed to where drives are built,
     two decades around the nominal 2500, 25 points), the frequency ``f_hz`` (from free ringing: over its uncertainty,
     ``_frequency_factors``; a candidate of the whole log's spectrum: tried both as the locked-motor ringing w_l and
-    as the coupled mode w_l sqrt(1 + r^2 J_l*), the motor swinging too) and the friction around the start's decay (x1/3..3: its
-    accuracy on the measured logs) or, without a trusted decay, f_l* over 1e-3..10 in factors of sqrt(10)."""
+    as the coupled mode w_l sqrt(1 + r^2 J_l*), the motor swinging too) and the friction around the start's decay
+    (x1/3..3: its accuracy on the measured logs) or, without a trusted decay, f_l* over 1e-3..10 in factors of
+    sqrt(10)."""
     pts = []
     trusted, decay = bool(start["frequency_trusted"]), bool(start["consistent"])
     for row in extras:
@@ -609,18 +610,16 @@ def _frequency_factors(start: dict[str, Any], alternatives: int) -> np.ndarray:
     """Factors on the start's w_l^2 spanning its uncertainty in steps of 6 % (3 % of frequency: about a quarter
     period of phase over the first window's 8 periods): from the lower to the higher of the spectral and the
     least-squares estimates when they are consistent (``w_l2_ls``), each widened by its own floor of +-6 %
-    (``start.W2_SPREAD``), else +-``w_l2_spread`` around the peak. Only the start's value when the grid also spans
-    an effect's alternatives. Why both ends: a chirp's peak read 12 % below the truth's w_l^2 and the least-squares
+    (``start.W2_SPREAD``), else that floor around the peak. Only the start's value when the grid also spans an
+    effect's alternatives. Why both ends: a chirp's peak read 12 % below the truth's w_l^2 and the least-squares
     value 2.5 % below it; a span symmetric about the peak ended exactly at the least-squares value and missed the
     truth's basin."""
     if alternatives > 1:
         return np.array([1.0])
     floor = math.log1p(W2_SPREAD)
     ls = float(start.get("w_l2_ls", math.nan)) / float(start["w_l2"])
-    if start.get("consistent") and ls > 0:
-        lo, hi = min(0.0, math.log(ls)) - floor, max(0.0, math.log(ls)) + floor
-    else:
-        lo = -(hi := math.log1p(min(float(start.get("w_l2_spread", W2_SPREAD)), 1.0)))
+    own = math.log(ls) if start.get("consistent") and ls > 0 else 0.0
+    lo, hi = min(0.0, own) - floor, max(0.0, own) + floor
     steps = max(2, int(math.ceil((hi - lo) / math.log(1.06))))
     return np.exp(np.linspace(lo, hi, steps + 1))
 

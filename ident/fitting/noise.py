@@ -14,8 +14,8 @@ whose load never stops ringing, on slow sample rates (1 kHz: the ringing survive
 
 A misfit can also ring (a fit trapped on the wrong frequency leaves the residual oscillating at the ringing,
 hundreds of times the noise), and then the differences do not suppress it enough; the upper half-band of the
-residual's spectrum (above a quarter of the sample rate) holds none of it, so the estimate is the smaller of the
-two (``residual_noise_std``).
+residual's spectrum (above a quarter of the sample rate) holds none of it, so that band's estimate replaces the
+differences' when it is clearly lower (``residual_noise_std``).
 
 Limit, said plainly: a misfit above a quarter of the sample rate survives both and is counted as noise, so a missing
 effect that only shows at such frequencies cannot be told from noise.
@@ -41,26 +41,27 @@ def residual_noise_std(residual: np.ndarray) -> float:
       two chirps) has no power there.
 
     The first is the estimate unless the second is below it by more than ``AGREE_SIGMAS`` standard deviations of
-    their difference on white noise (measured: 1.4/sqrt(n) and 1.8/sqrt(n) relative, 2.3/sqrt(n) for the
-    difference): a plain minimum would bias every good fit's estimate low by 1-4 %."""
+    their relative difference on white noise (``DIFFERENCE_SCATTER`` / sqrt(n)): a plain minimum would bias every
+    good fit's estimate low by 1-4 %."""
     d = np.diff(np.asarray(residual, dtype=float))
     if d.size == 0:
         return 0.0
     mad = float(np.median(np.abs(d - np.median(d))) * MAD_TO_SIGMA / math.sqrt(2.0))
     high = high_band_noise_std(residual)
-    return high if mad > high * (1.0 + AGREE_SIGMAS * 2.3 / math.sqrt(d.size)) else mad
+    return high if mad > high * (1.0 + AGREE_SIGMAS * DIFFERENCE_SCATTER / math.sqrt(d.size)) else mad
 
 
 AGREE_SIGMAS = 5.0
-
-
+#: sqrt(n) x the standard deviation of the two estimates' relative difference on white noise (measured: 1.4 and 1.8
+#: for each, 2.3 for their difference)
+DIFFERENCE_SCATTER = 2.3
 HIGH_BAND = 0.25   # the band [HIGH_BAND x rate, rate / 2) read by ``high_band_noise_std``
 
 
 def high_band_noise_std(x: np.ndarray) -> float:
     """White-noise level of ``x`` from its periodogram above ``HIGH_BAND`` x the sample rate (Hann window): white
     noise of variance sigma^2 has a flat periodogram whose bins are sigma^2 chi^2_2 / 2, median sigma^2 ln 2; the
-    median ignores narrow lines. inf when there are fewer than 16 bins (too short to tell)."""
+    median ignores narrow lines. inf for fewer than 128 samples (too few bins to tell)."""
     x = np.asarray(x, dtype=float)
     if x.size < 128:
         return math.inf
