@@ -155,8 +155,8 @@ def success(r: dict[str, Any]) -> bool:
 
 
 def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
-    """Per class: logs, successes (``success``), named right / missed / false, confident names, wall time median
-    and max, the screen's first-ranked candidate; the magnitude errors where the shape is the library's."""
+    """Per class: logs, successes (``success``), named right / missed / false (``confident_false``: of them, named
+    without a doubt), confident names, wall time median and max, the screen's first-ranked candidate; the magnitude errors where the shape is the library's."""
     table = {}
     for cls in CLASSES:
         rs = [r for r in results if r["class"] == cls]
@@ -171,6 +171,7 @@ def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
                       "named_right": sum(len(r["right"]) for r in rs), "missed": sum(len(r["missed"]) for r in rs),
                       "false": sum(len(r["false"]) for r in rs),
                       "logs_with_false": sum(bool(r["false"]) for r in rs),
+                      "confident_false": sum(len(set(r["confident"]) - set(r["hidden"])) for r in rs),
                       "logs_with_confident_name": sum(bool(r["confident"]) for r in rs),
                       "logs_with_unexplained": sum(bool(r["unexplained"]) for r in rs),
                       "time_median_s": float(np.median(t)), "time_max_s": float(np.max(t)),
