@@ -156,7 +156,8 @@ def success(r: dict[str, Any]) -> bool:
 
 def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
     """Per class: logs, successes (``success``), named right / missed / false (``confident_false``: of them, named
-    without a doubt), confident names, wall time median and max, the screen's first-ranked candidate; the magnitude errors where the shape is the library's."""
+    without a doubt), confident names, wall time median and max, the screen's first-ranked candidate; the magnitude
+    errors where the shape is the library's."""
     table = {}
     for cls in CLASSES:
         rs = [r for r in results if r["class"] == cls]

@@ -26,10 +26,11 @@ peak 19 % below the truth) or it comes from several segments over at least two o
 grid spans the friction widely. An untrusted peak (one short segment at 1 kHz read 374 Hz for a 113 Hz ringing)
 stays one candidate among those below, with the least-squares frequency; when it lies below what the segments
 resolve (fewer than ``MIN_PERIODS`` periods in the longest), the largest peak above that is one too
-(``resolved_peak``: a ringing that friction damps within a few periods sits under the segments' slow settling). When no segment qualifies (a chirp, a log
-that never lets the motor rest), the spectral peaks of the whole log are the candidates (``candidates_hz``,
-``whole_log_candidates``) that the first window's grid scans: the load's velocity and its ratio to the torque; for a
-log without rests (a chirp) first the load's acceleration and that ratio where both stand above the noise.
+(``resolved_peak``: a ringing that friction damps within a few periods sits under the segments' slow settling).
+When no segment qualifies (a chirp, a log that never lets the motor rest), the spectral peaks of the whole log are
+the candidates (``candidates_hz``, ``whole_log_candidates``) that the first window's grid scans: the load's velocity
+and its ratio to the torque; for a log without rests (a chirp) first the load's acceleration and that ratio where
+both stand above the noise.
 """
 from __future__ import annotations
 
@@ -242,11 +243,12 @@ def _verdicts(log: DriveLog, segs: list[tuple[int, int]], f_peak: float | None, 
 
 def resolved_peak(segments: list[np.ndarray], rate_hz: float, f_peak: float | None) -> float | None:
     """The segments' largest spectral peak (a local maximum) among the frequencies whose ``MIN_PERIODS`` periods
-    fit in the longest segment, when their overall peak lies below those (else None). A segment's slow motion (the load settling to a
-    new rest while the motor is stuck) puts its power at a cycle or so per segment, above a ringing that friction
-    damps within a few periods: measured on an independent drive's 10 s log (36 segments of 0.2-0.3 s), the overall
-    peak was 2.4 Hz and the ringing's 484.6 Hz (truth 484.5 Hz) the fifth-largest bin, at 395x the median power;
-    without it among the candidates the fit ended trapped at 20x the stiffness, 140x the noise."""
+    fit in the longest segment, when their overall peak lies below those (else None). A segment's slow motion (the
+    load settling to a new rest while the motor is stuck) puts its power at a cycle or so per segment, above a
+    ringing that friction damps within a few periods: measured on an independent drive's 10 s log (36 segments of
+    0.2-0.3 s), the overall peak was 2.4 Hz and the ringing's 484.6 Hz (truth 484.5 Hz) the fifth-largest bin, at
+    395x the median power; without it among the candidates the fit ended trapped at 20x the stiffness, 140x the
+    noise."""
     longest = max((x.size for x in segments), default=0) / rate_hz
     if f_peak is None or longest <= 0 or f_peak * longest >= MIN_PERIODS:
         return None

@@ -20,7 +20,9 @@ kinematic_error      c = A cos(phi), s = A sin(phi)         d95
 
 The Stribeck velocity is searched down to a tenth of the load's 5 % slip speed (``stribeck_speeds``), no lower: a
 decay below every speed the log shows is the same static level for any smaller velocity, and costs the exact
-simulation substeps in proportion. v_m, v_l: median speed of the motor / load while it slips; d95: 95th percentile of |deflection|; both from the
+simulation substeps in proportion.
+
+v_m, v_l: median speed of the motor / load while it slips; d95: 95th percentile of |deflection|; both from the
 base model's simulation of the training part (the model reproduces the log closely; the raw deflection r q_m - q_l
 is quantised by the encoder far above the deflections that matter). The hysteresis is written with its saturation
 deflection delta = H / sigma (where the Dahl element stops stiffening), because at small H the element's torque is
