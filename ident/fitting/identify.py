@@ -399,9 +399,11 @@ def fit_ipopt(problem: OutputError, theta0: np.ndarray, lower: np.ndarray, upper
     res = _residual_callback(problem, n, m)
     verbose = getattr(problem, "verbose", False)
     stopper = _stop_callback(problem, n, stop)
-    solver = _gauss_newton_solver(res, n, m, max_iter, verbose, stopper)
     try:
+        # the solver's construction too: CasADi calls the callbacks while it builds the Jacobian, and a Ctrl-C there
+        # came back as a CasADi error (exit 2 with its trace, measured once in CI) instead of the interruption
         with c_stdout(to_stderr=verbose), _sigint_flag(problem):
+            solver = _gauss_newton_solver(res, n, m, max_iter, verbose, stopper)
             sol = solver(x0=theta0, lbx=lower, ubx=upper)
     except RuntimeError:  # CasADi wraps an exception raised in a callback: say so if it was Ctrl-C or the budget
         _reraise_interrupt(problem)
