@@ -149,6 +149,76 @@ def test_hidden_hardening_is_named_with_its_magnitude():
     assert e.runner_up is not None and "runner-up" in e.evidence
     serial, _ = diagnosed(HARDENING, workers=0)
     assert [x.name for x in serial.effects] == ["hardening"] and serial.effects[0].magnitude == e.magnitude
+    # the size probes ran through the FMU: held 10 % either side, the refitted model fits worse (the log pins it)
+    assert [c["factor"] for c in e.size_check] == [0.9, 1.1] and all(c["delta_cost"] > 0 for c in e.size_check)
+    assert serial.effects[0].ci95 == e.ci95 and serial.effects[0].size_check == e.size_check
+
+
+def test_a_size_the_log_does_not_pin_is_tentative_and_its_interval_widens() -> None:
+    """The size check (``sizes.widen``): a probe whose refit rises by d noise variances at 10 % off widens the
+    interval to the secant's standard deviation, 10 % / sqrt(d), when that is wider than the local one; a probe that
+    fits as well or better says the log does not pin the size (tentative, with its numbers) and the interval covers
+    that size; an interval that widens across 0 is a doubt too, and so is a search that ran out of rounds. A
+    well-pinned size keeps its interval; a plug-in without probes leaves it as it is."""
+    from ident.diagnosis.result import NamedEffect
+    from ident.diagnosis.sizes import SIZE_PROBE, Z95, widen
+
+    final = Fitted(("stribeck",), 7000.0, 3000.0, np.ones(3000), 7000, 6, {})
+    s2 = final.train_cost / (final.n_train - final.k)
+
+    def checks(*rises: float) -> list:
+        return [(f, Fitted(final.effects, final.train_cost + d * s2, 0.0, np.ones(1), 7000, 6))
+                for f, d in zip((1 - SIZE_PROBE, 1 + SIZE_PROBE), rises)]
+
+    def effect(lo: float = 0.99, hi: float = 1.01) -> NamedEffect:
+        return NamedEffect("stribeck", 1.0, (lo, hi), "1", "", None, None)
+
+    pinned, doubts = effect(), []
+    widen(pinned, final, checks(1e6, 1e6), doubts)
+    assert pinned.ci95 == (0.99, 1.01) and doubts == [] and len(pinned.size_check) == 2
+    flat, doubts = effect(), []
+    widen(flat, final, checks(4.0, 400.0), doubts)
+    half = Z95 * SIZE_PROBE / 2.0   # the secant's sd at the flatter side: 10 % / sqrt(4)
+    assert flat.ci95 == pytest.approx((1 - half, 1 + half)) and doubts == []
+    loose, doubts = effect(), []
+    widen(loose, final, checks(30.0, -5.0), doubts)
+    assert len(doubts) == 1 and "does not pin its size to 10%" in doubts[0] and "-5 noise variances" in doubts[0]
+    assert loose.ci95[1] >= 1 + SIZE_PROBE
+    crossing, doubts = effect(0.05, 1.95), []
+    widen(crossing, final, checks(0.01, 1e6), doubts)
+    assert crossing.ci95[0] < 0 and any("includes 0" in d for d in doubts)
+    kept, doubts = effect(), []
+    widen(kept, final, [(0.9, None), (1.1, None)], doubts)
+    assert kept.ci95 == (0.99, 1.01) and kept.size_check == [] and doubts == []
+    restless, doubts = effect(), []
+    widen(restless, final, [], doubts)
+    assert len(doubts) == 1 and "used up its" in doubts[0]
+
+
+def test_the_size_search_follows_the_profile_and_checks_where_it_ends() -> None:
+    """The size search (``sizes.search_size``) on a profile whose minimum lies at 3x the free refit's size (the
+    measured case: a viscous coefficient refitted to 1/13 of the truth, the profile falling all the way to it): it
+    moves with steps that square, stops where neither side fits better, and returns the check around that point;
+    on a profile whose minimum is where it starts it spends one round (the check) and does not move."""
+    from ident.diagnosis.sizes import SIZE_PROBE, search_size
+
+    def fitted(size: float, best: float) -> Fitted:
+        m = Fitted(("viscous_motor",), 1000.0 + 1e4 * math.log(size / best) ** 2, 0.0, np.ones(1), 7000, 5)
+        m.state = size
+        return m
+
+    for best in (3.0, 1.0):
+        rounds = []
+
+        def run(fn, tasks, best=best):
+            rounds.append([t[3] for t in tasks])
+            return [fitted(t[1].state * t[3], best) for t in tasks]
+
+        end, check, note = search_size(run, None, fitted(1.0, best), "viscous_motor", None)
+        assert [f for f, _ in check] == [1 - SIZE_PROBE, 1 + SIZE_PROBE]
+        assert all(p.train_cost > end.train_cost for _, p in check)
+        assert abs(math.log(end.state / best)) < math.log(1 + SIZE_PROBE)
+        assert (note != "") == (best != 1.0) and (len(rounds) == 1) == (best == 1.0)
 
 
 def test_a_candidate_out_of_budget_blocks_a_confident_name():

@@ -25,8 +25,10 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    candidate was not ruled out, when the model it extends already explained the log down to the noise (it may stand
    in for a named effect's shape the library lacks: ``_doubts``), or when its refitted runner-up predicts the
    held-back data as well (the acceptance rule's Diebold-Mariano test cannot tell the two apart: e.g. load-side
-   viscous damping and a small hysteresis both explain a ringing decay); what is left is localised by regime
-   (*unexplained*), never named.
+   viscous damping and a small hysteresis both explain a ringing decay), or when the log does not pin its size
+   (``sizes``: each named size is searched along its own axis with the rest refitted, and checked
+   ``SIZE_PROBE`` either side; a check that fits as well makes the name tentative, one that fits worse widens the
+   interval to its secant); what is left is localised by regime (*unexplained*), never named.
 
 Ctrl-C stops a diagnosis at once: worker processes are killed, nothing is written.
 """
@@ -49,6 +51,7 @@ from ..protocols.batch import WorkerPool
 from .models import CandidateFit, Fitted, ModelPlugin
 from .result import Diagnosis, DiagnosisStep, NamedEffect, PublishedReference
 from .screening import SCREEN_LEVEL, ranked, screen_table
+from .sizes import PROBE_BUDGETS, SIZE_PROBE, Checks, search_size, widen
 
 #: practical significance: a named effect must remove more than 1 % of what the model leaves in the held-back data
 #: (a ratio of two costs: the noise level's scale cancels in it)
@@ -148,6 +151,7 @@ class _Search:
         self.doubts: dict[str, list[str]] = {}  # named effect -> why the log cannot pin it (it is then tentative)
         self.notes: list[str] = []
         self.unresolved: dict[str, dict[str, Any]] = {}   # candidates not fitted and not ruled out since
+        self.size_checks: dict[str, Checks] = {}   # named effect -> its size's last check (``sizes``)
 
     @property
     def shared(self) -> Any:
@@ -176,7 +180,34 @@ class _Search:
                 current = self.models[-1]
                 continue
             current = nxt
-        return self._backward(current)
+        return self._settle(self._backward(current))
+
+    def _settle(self, model: Fitted) -> Fitted:
+        """The size search of every named effect (``sizes``), in the order named; when a later effect's search
+        moved the model, the earlier ones are searched (checked) again from where it ended."""
+        if not self.named:
+            return model
+        budget = None if self.budget is None else PROBE_BUDGETS * self.budget
+        self.say(f"searching the sizes of {', '.join(e.name for e in self.named)} ({SIZE_PROBE:.0%} either side "
+                 "first) ...")
+        start, last_move = model, -1
+        for i, e in enumerate(self.named):
+            model, moved = self._search_size(model, e.name, budget)
+            last_move = i if moved else last_move
+        for e in self.named[:last_move]:
+            model, _ = self._search_size(model, e.name, budget)
+        if model is not start:
+            self.steps[-1] = self._refreshed(model, self.steps[-1], "the size search (below) moved the final model")
+        return model
+
+    def _search_size(self, model: Fitted, name: str, budget: float | None) -> tuple[Fitted, bool]:
+        def run(fn: Any, tasks: list[tuple]) -> list[Any]:
+            return self.pool.map(fn, tasks, desc=f"size search ({name})")
+
+        out, self.size_checks[name], note = search_size(run, self.shared, model, name, budget)
+        if note:
+            self.notes.append(note)
+        return out, out is not model
 
     def _step(self, current: Fitted, names: tuple[str, ...]) -> Fitted | None:
         """One forward step: screen, refit the passing candidates, accept one. Returns the new model, ``current``
@@ -203,7 +234,9 @@ class _Search:
         if winner is None:
             if reduced is not None and reduced.held_cost < current.held_cost:
                 self.models[-1] = reduced
-                self.steps[-1] = self._refreshed(reduced, self.steps[-1])
+                self.steps[-1] = self._refreshed(reduced, self.steps[-1], "the drop test found a better-converged "
+                                                 "model without the best candidate; the candidates are compared "
+                                                 "again against it")
                 return current
             return None
         return self._accept(current, winner, fits, k)
@@ -308,12 +341,11 @@ class _Search:
         self.models.append(model)
         self.steps.append(self.plugin.step(model, added, score, extra))
 
-    def _refreshed(self, model: Fitted, old: DiagnosisStep) -> DiagnosisStep:
+    def _refreshed(self, model: Fitted, old: DiagnosisStep, why: str) -> DiagnosisStep:
         self.models[-1] = model = self.plugin.resimulated(model)
         step = self.plugin.step(model, old.added, old.score, dict(old.extra, refreshed=True))
         step.screen, step.candidates = old.screen, old.candidates
-        self.notes.append(f"step {len(self.steps) - 1}: the drop test found a better-converged model without the "
-                          "best candidate; the candidates are compared again against it")
+        self.notes.append(f"step {len(self.steps) - 1}: {why}")
         return step
 
     def _gap(self, model: Fitted) -> str:
@@ -394,6 +426,8 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
         mag = plugin.magnitude(final, e.name)
         named.append(NamedEffect(e.name, mag.value, mag.ci95, mag.unit, e.evidence, e.runner_up, e.margin,
                                  mag.params))
+        if e.name in search.size_checks:
+            widen(named[-1], final, search.size_checks[e.name], search.doubts.setdefault(e.name, []))
     over = plugin.over_noise(final)
     reasons = []
     if over is not None and max(over) > CONFIDENT_OVER_NOISE:
@@ -418,7 +452,7 @@ def _summary(named: list[NamedEffect], unexplained: list[dict[str, Any]], over: 
     for e in named:
         sure = "tentatively (" + e.why_tentative + ")" if e.tentative else "confidently"
         out.append(f"{e.name} is named {sure}: {e.magnitude:.4g} {e.unit}, 95 % interval "
-                   f"[{e.ci95[0]:.4g}, {e.ci95[1]:.4g}]")
+                   f"[{e.ci95[0]:.4g}, {e.ci95[1]:.4g}]" + (f" ({e.size_note()})" if e.size_check else ""))
     if not named:
         out.append("no library effect improves the held-back prediction significantly")
     if over is None:
@@ -478,7 +512,7 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
     with WorkerPool(workers, scheduler) as pool:
         search = _Search(plugin, pool, budget, max_effects, say)
         final = search.run()
-    named, unexplained, table, summary = _conclude(search, final)
+        named, unexplained, table, summary = _conclude(search, final)
     diag = Diagnosis(plugin.kind, search.steps, named, unexplained, table, notes=search.notes + plugin.notes(),
                      not_ruled_out=search.not_ruled_out, derivations=plugin.derivations(), summary=summary,
                      budget=budget)

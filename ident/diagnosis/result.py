@@ -44,8 +44,8 @@ class NamedEffect:
     """An effect the workflow named: its fitted magnitude (``unit``) with a 95 % interval, the evidence, and how
     sure the choice was against the runner-up (``margin``: the runner-up's held-back cost / the winner's).
     ``tentative``: the name is the library's best improvement, not an explanation; ``why_tentative`` says why
-    (the final model stays above the noise, a candidate could not be fitted and was not ruled out, or the runner-up
-    predicts the held-back data as well)."""
+    (the final model stays above the noise, a candidate could not be fitted and was not ruled out, the runner-up
+    predicts the held-back data as well, or the log does not pin the effect's size)."""
 
     name: str
     magnitude: float
@@ -57,11 +57,24 @@ class NamedEffect:
     params: dict[str, float] = field(default_factory=dict)
     tentative: bool = False
     why_tentative: str = ""
+    #: the size's profile probes (``engine._check_sizes``): per probe the factor the size was held at, that size,
+    #: the training cost's change in noise variances, and the local interval the probes were checked against
+    size_check: list[dict[str, float]] = field(default_factory=list)
+
+    def size_note(self) -> str:
+        """What the size probes showed, in words ('' when there were none)."""
+        if not self.size_check:
+            return ""
+        rises = " and ".join(f"{c['delta_cost']:+.3g} at {c['factor']:.2g}x" for c in self.size_check)
+        lo, hi = self.size_check[0]["local_lo"], self.size_check[0]["local_hi"]
+        how = (f"wider than the local interval [{lo:.4g}, {hi:.4g}]" if self.ci95[0] < lo or self.ci95[1] > hi
+               else "the local interval stands")
+        return f"the size held either side, every other unknown refitted: training cost {rises} noise variances; {how}"
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "magnitude": self.magnitude, "ci95": list(self.ci95), "unit": self.unit,
                 "evidence": self.evidence, "runner_up": self.runner_up, "margin": self.margin, "params": self.params,
-                "tentative": self.tentative, "why_tentative": self.why_tentative}
+                "tentative": self.tentative, "why_tentative": self.why_tentative, "size_check": self.size_check}
 
 
 @dataclass

@@ -123,6 +123,12 @@ class ModelPlugin(ABC):
     def magnitude(self, model: Fitted, name: str) -> Magnitude:
         """Effect ``name``'s magnitude in ``model``, with its interval."""
 
+    def probe_size(self, model: Fitted, name: str, factor: float, budget: float | None) -> Fitted | None:
+        """``model`` refitted with effect ``name``'s size held at ``factor`` times its value and every other unknown
+        free (a point of the size's profile: the engine's check that the log pins the size as closely as the local
+        interval says); ``budget`` as ``refit``. None: the plug-in has no such refit (the local interval stands)."""
+        return None
+
     @abstractmethod
     def over_noise(self, model: Fitted) -> tuple[float, float] | None:
         """(training, held-back) residual RMS over the sensor noise, or None where the noise is not known."""

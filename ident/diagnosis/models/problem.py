@@ -53,6 +53,7 @@ class ModelProblem(OutputError):
         self.coords = [c for _, cs in self.blocks for c in cs]
         self.fixed = dict(fixed or {})
         self.budget = budget
+        self.pinned: dict[int, float] = {}  # unknowns held at a value (``TwoInertiaPlugin.probe_size``)
         self.best: tuple[float, np.ndarray] | None = None   # the lowest cost simulated and its point
         self.since_best = 0
 
@@ -100,7 +101,11 @@ class ModelProblem(OutputError):
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = super().bounds()
-        return (np.concatenate([lo, [c.lo for c in self.coords]]), np.concatenate([hi, [c.hi for c in self.coords]]))
+        lo = np.concatenate([lo, [c.lo for c in self.coords]])
+        hi = np.concatenate([hi, [c.hi for c in self.coords]])
+        for i, v in self.pinned.items():
+            lo[i] = hi[i] = v
+        return lo, hi
 
     def extra_scan(self, theta: np.ndarray) -> list[np.ndarray]:
         """Steps the continuation's scan tries on the effects' coordinates: each effect's jointly, a product grid
@@ -121,13 +126,17 @@ class ModelProblem(OutputError):
 
     def jacobian(self, theta: np.ndarray) -> np.ndarray:
         """Central differences as ``OutputError`` (3e-8 in the log-parameters, 1e-6 elsewhere); one-sided at a
-        bound, where the FMU would refuse the other side (e.g. a viscous coefficient of exactly 0). ``central``
+        bound, where the FMU would refuse the other side (e.g. a viscous coefficient of exactly 0); a zero column for
+        an unknown whose bounds hold it (IPOPT treats it as a parameter: no simulation is spent on it). ``central``
         False: forward differences (half the simulations; a candidate's refit, whose optimum only has to rank the
         candidates, uses them; the reported intervals never do)."""
         theta = np.asarray(theta, dtype=float)
         lo, hi = self.bounds()
         cols = []
         for i in range(theta.size):
+            if lo[i] == hi[i]:
+                cols.append(np.zeros_like(self.residuals(theta)))
+                continue
             h = 3e-8 if i < 3 else 1e-6
             if self.fd_steps is not None and i < self.fd_steps.size:  # the continuation's search steps
                 h = max(h, float(self.fd_steps[i]))

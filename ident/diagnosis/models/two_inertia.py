@@ -379,6 +379,37 @@ class TwoInertiaPlugin(ModelPlugin):
             lo = 0.0
         return Magnitude(mag, (lo, hi), EFFECTS[name].unit, values)
 
+    def probe_size(self, model: Fitted, name: str, factor: float, budget: float | None) -> Fitted | None:
+        """The effect's linear coordinates (its size: the only one for every effect but the kinematic error, whose
+        two are held together, fixing its phase too) held at ``factor`` times their values; the other unknowns
+        start where the model's covariance predicts them along the valley (their regression on the held ones) and
+        are refitted within ``budget``. A probe that runs out of budget returns the best point it simulated (its
+        cost is then an upper bound of the profile's)."""
+        st = model.state
+        if st.rigid or name == FLEXIBILITY:
+            return None
+        held = [4 + i for i, c in enumerate(_layout(model)) if c.effect == name and not c.log]
+        free = [i for i in range(st.theta.size) if i not in held]
+        delta = st.theta[held] * (factor - 1.0)
+        cov = self._cov(model)
+        head = st.theta.copy()
+        head[held] += delta
+        head[free] += cov[np.ix_(free, held)] @ np.linalg.lstsq(cov[np.ix_(held, held)], delta, rcond=None)[0]
+        problem = st.problem(self.full, model.effects, self.stop, self.sigma, central=False,
+                             budget=EvaluationBudget(None if budget is None else budget * self.stop))
+        try:
+            lo, hi = problem.bounds()
+            problem.pinned = {i: float(np.clip(head[i], lo[i], hi[i])) for i in held}
+            lo, hi = problem.bounds()
+            head = np.clip(head, lo, hi)
+            try:
+                theta = _ipopt_or_best(problem, head, lo, hi)
+            except BudgetExceeded:
+                theta = problem.best[1] if problem.best is not None else head
+        finally:
+            problem.close()
+        return self.evaluate(model.effects, theta, st.base, st.scales, sens=st.sens)
+
     def _cov(self, model: Fitted) -> np.ndarray:
         """The larger (per parameter) of the sandwich and noise-only covariances of the unknowns, as
         ``identify`` reports (computed once per model)."""
