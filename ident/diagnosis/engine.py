@@ -28,7 +28,8 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    viscous damping and a small hysteresis both explain a ringing decay), or when the log does not pin its size
    (``sizes``: each named size is searched along its own axis with the rest refitted, and checked
    ``SIZE_PROBE`` either side; a check that fits as well makes the name tentative, one that fits worse widens the
-   interval to its secant); what is left is localised by regime (*unexplained*), never named.
+   interval to its secant), or when its size search moved the model (the free refits it was chosen by had
+   stalled); what is left is localised by regime (*unexplained*), never named.
 
 Ctrl-C stops a diagnosis at once: worker processes are killed, nothing is written.
 """
@@ -206,7 +207,8 @@ class _Search:
 
         out, self.size_checks[name], note = search_size(run, self.shared, model, name, budget)
         if note:
-            self.notes.append(note)
+            self.notes.append(f"size search: {name} {note}")
+            self.doubts.setdefault(name, []).append(note)
         return out, out is not model
 
     def _step(self, current: Fitted, names: tuple[str, ...]) -> Fitted | None:

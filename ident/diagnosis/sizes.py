@@ -16,6 +16,10 @@ size's profile), on the workers:
    direction with steps that square (g, g^2 of the point reached), until neither fits better.
 3. **Check again** around the point reached; every round counts against ``SIZE_ROUNDS`` (never seconds).
 
+A size that moved is a doubt on its name: the loop chose it over its rivals by refits that had stalled, and theirs
+may have stalled as well (a pair of viscous coefficients, motor and load side, was named at the noise after the
+search moved them, the load side's 51 % off).
+
 The last check around the final point gives the interval (``widen``):
 - a probe whose cost rises by d noise variances bounds the size's standard deviation from below by the secant,
   |change| / sqrt(d);
@@ -83,9 +87,9 @@ def search_size(run: Mapper, plugin: ModelPlugin, model: Fitted, name: str, budg
 def _moved(name: str, start: Fitted, end: Fitted) -> str:
     if end is start:
         return ""
-    return (f"size search: {name} held along its size with every other unknown refitted fits the training data "
-            f"better than the free refit did (training cost {start.train_cost:.6g} -> {end.train_cost:.6g}): the "
-            "final model is the point reached")
+    return (f"held along its size with every other unknown refitted, the model fits the training data better than "
+            f"the free refit did (training cost {start.train_cost:.6g} -> {end.train_cost:.6g}): the free refits "
+            f"had stalled, and the candidates {name} was chosen over may have stalled as well")
 
 
 def widen(e: NamedEffect, final: Fitted, checks: Checks, doubts: list[str]) -> None:
