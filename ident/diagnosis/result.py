@@ -45,7 +45,7 @@ class NamedEffect:
     sure the choice was against the runner-up (``margin``: the runner-up's held-back cost / the winner's).
     ``tentative``: the name is the library's best improvement, not an explanation; ``why_tentative`` says why
     (the final model stays above the noise, a candidate could not be fitted and was not ruled out, the runner-up
-    predicts the held-back data as well, or the log does not pin the effect's size)."""
+    predicts the held-back data as well, or the log does not pin the effect's size, or its size search moved it)."""
 
     name: str
     magnitude: float
@@ -57,7 +57,7 @@ class NamedEffect:
     params: dict[str, float] = field(default_factory=dict)
     tentative: bool = False
     why_tentative: str = ""
-    #: the size's profile probes (``engine._check_sizes``): per probe the factor the size was held at, that size,
+    #: the size's last check (``sizes.widen``): per probe the factor the size was held at, that size,
     #: the training cost's change in noise variances, and the local interval the probes were checked against
     size_check: list[dict[str, float]] = field(default_factory=list)
 
