@@ -15,6 +15,7 @@ generator's shape is the library's, the wall times per class and what the screen
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -141,7 +142,16 @@ def run_case(case: Case, duration_s: float | None = None, rate_hz: float | None 
     log, truth = load(case, duration_s, rate_hz)
     t0 = time.perf_counter()
     diag = diagnose(log, resolution_pulses=0, **options)
-    return score(case, truth, diag, time.perf_counter() - t0)
+    out = score(case, truth, diag, time.perf_counter() - t0)
+    out["log_sha256"] = log_fingerprint(case, duration_s, rate_hz)
+    return out
+
+
+def log_fingerprint(case: Case, duration_s: float | None = None, rate_hz: float | None = None) -> str:
+    """SHA-256 of the cached log file: two runs on different machines compare it to tell a different log (the
+    generator's floating point on another CPU) from a different diagnosis of the same log."""
+    path = cache_dir() / f"{case.stem}-{duration_s}-{rate_hz}.csv"
+    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def success(r: dict[str, Any]) -> bool:

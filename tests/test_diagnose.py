@@ -221,6 +221,64 @@ def test_the_size_search_follows_the_profile_and_checks_where_it_ends() -> None:
         assert (note != "") == (best != 1.0) and (len(rounds) == 1) == (best == 1.0)
 
 
+def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -> None:
+    """``sizes.search_candidate``: a candidate whose free refit stalled at 1/6 of its profile's minimum is moved
+    there (its probes counted, the move flagged) before the loop compares it with its rivals; a move that lowered the
+    training cost by less than the practical-significance ratio is not checked again (it could not change the
+    winner), nor is a refit searched whose training cost is already at the noise; a search that uses up its rounds
+    still moving is flagged (a rival so flagged makes the winner tentative); a plug-in without probes leaves the refit
+    as it was."""
+    from types import SimpleNamespace
+
+    from ident.diagnosis.models import CandidateFit
+    from ident.diagnosis.sizes import SIZE_PROBE, SIZE_ROUNDS, search_candidate, search_size
+
+    def fitted(size: float, floor: float = 1000.0, n: int = 500) -> Fitted:
+        """A profile in noise variances with its minimum at 6: ``floor`` there, from ``n`` samples."""
+        m = Fitted(("viscous_motor",), floor + 1e4 * math.log(size / 6.0) ** 2, 0.0, np.ones(1), n, 5)
+        m.state = SimpleNamespace(size=size, sim=None, floor=floor, n=n)
+        return m
+
+    class Profile:
+        def probe_size(self, model, name, factor, budget):
+            return fitted(model.state.size * factor, model.state.floor, model.state.n)
+
+    class NoProbes:
+        def probe_size(self, model, name, factor, budget):
+            return None
+
+    moved = search_candidate(Profile(), CandidateFit("viscous_motor", fitted(1.0)), None, 1.01)
+    assert moved.size_moved and moved.size_probes > 2
+    assert abs(math.log(moved.model.state.size / 6.0)) < 2 * math.log(1 + SIZE_PROBE)
+    near = search_candidate(Profile(), CandidateFit("viscous_motor", fitted(6.0 * 1.05)), None, 1.01)
+    assert not near.size_moved and near.size_probes == 2 and near.model.state.size == 6.0 * 1.05
+    # 1.25x off on a cost of 1e6: the moves (0.9x, 0.9x again) gain 0.05 %, the search ends there unchecked
+    small = search_candidate(Profile(), CandidateFit("viscous_motor", fitted(6.0 * 1.25, 1e6)), None, 1.01)
+    assert small.size_moved and small.size_probes == 6
+    settled, checks, _ = search_size(lambda fn, tasks: [fn(t) for t in tasks], Profile(), fitted(6.0 * 1.25, 1e6),
+                                     "viscous_motor", None)
+    assert len(checks) == 2 and abs(settled.state.size - 6.0) < 6.0 * 0.06
+    kept = search_candidate(NoProbes(), CandidateFit("viscous_motor", fitted(1.0)), None, 1.01)
+    assert not kept.size_moved and kept.model.state.size == 1.0
+    assert not near.size_unsettled and not small.size_unsettled
+    # a profile that keeps falling: the search uses up its rounds still moving, and says so
+    class Falling:
+        def probe_size(self, model, name, factor, budget):
+            m = fitted(model.state.size * factor)
+            m.train_cost = 1000.0 + 1e4 / m.state.size
+            return m
+
+    start = fitted(1.0)
+    start.train_cost = 1000.0 + 1e4
+    restless = search_candidate(Falling(), CandidateFit("viscous_motor", start), None, 1.01)
+    assert restless.size_moved and restless.size_unsettled and restless.size_probes == 2 * SIZE_ROUNDS
+    # a refit already at the noise (cost below 1.01 x (n - k) noise variances) has no room for a significant move
+    quiet = search_candidate(Profile(), CandidateFit("viscous_motor", fitted(7.5, 1e6, 10**6)), None, 1.01)
+    assert not quiet.size_moved and quiet.size_probes == 0
+    failed = search_candidate(Profile(), CandidateFit("viscous_motor", error="no fit"), None, 1.01)
+    assert failed.model is None and failed.size_probes == 0
+
+
 def test_a_candidate_out_of_budget_blocks_a_confident_name():
     """With a budget too small to fit any candidate, nothing is named confidently: the candidates are listed as
     not ruled out, and the conclusions say so."""

@@ -53,7 +53,9 @@ class CandidateFit:
 
     ``exhausted``: the fit used up its evaluation budget (the candidate is then not ruled out); ``veto``: a reason
     of the model's own not to name it even if it scores (e.g. a parameter at its bound); ``evaluations``: the
-    simulations used, in whole training logs; ``start``: where the fit started."""
+    simulations used, in whole training logs; ``start``: where the fit started; ``size_probes``: the refits of the
+    size search that followed (``ident.diagnosis.sizes.search_candidate``), ``size_moved``: whether it moved the
+    size, ``size_unsettled``: whether it used up its rounds still moving (the refit may fit better still)."""
 
     name: str
     model: Fitted | None = None
@@ -62,6 +64,9 @@ class CandidateFit:
     veto: str | None = None
     evaluations: float = 0.0
     start: str = ""
+    size_probes: int = 0
+    size_moved: bool = False
+    size_unsettled: bool = False
 
 
 @dataclass
