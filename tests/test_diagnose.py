@@ -259,7 +259,7 @@ def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -
                                      "viscous_motor", None)
     assert len(checks) == 2 and abs(settled.state.size - 6.0) < 6.0 * 0.06
     kept = search_candidate(NoProbes(), CandidateFit("viscous_motor", fitted(1.0)), None, 1.01)
-    assert not kept.size_moved and kept.model.state.size == 1.0
+    assert not kept.size_moved and kept.model.state.size == 1.0 and kept.size_probes == 0
     assert not near.size_unsettled and not small.size_unsettled
     # a profile that keeps falling: the search uses up its rounds still moving, and says so
     class Falling:

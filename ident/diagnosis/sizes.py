@@ -115,8 +115,9 @@ def search_candidate(plugin: ModelPlugin, fit: CandidateFit, budget: float | Non
     count = [0]
 
     def run(fn: Callable[[tuple], Any], tasks: list[tuple]) -> list[Any]:
-        count[0] += len(tasks)
-        return [fn(t) for t in tasks]
+        out = [fn(t) for t in tasks]
+        count[0] += sum(p is not None for p in out)   # a model without probes (rigid) spends none
+        return out
 
     model, last, note = search_size(run, plugin, fit.model, fit.name, budget, min_gain)
     fit.model, fit.size_probes = model, count[0]
