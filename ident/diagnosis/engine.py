@@ -53,7 +53,7 @@ from ..protocols.batch import WorkerPool
 from .models import CandidateFit, Fitted, ModelPlugin
 from .result import Diagnosis, DiagnosisStep, NamedEffect, PublishedReference
 from .screening import SCREEN_LEVEL, ranked, screen_table
-from .sizes import PROBE_BUDGETS, SIZE_PROBE, Checks, search_candidate, search_size, widen
+from .sizes import SIZE_PROBE, Checks, search_candidate, search_size, widen
 
 #: practical significance: a named effect must remove more than 1 % of what the model leaves in the held-back data
 #: (a ratio of two costs: the noise level's scale cancels in it)
@@ -128,7 +128,7 @@ def _refit_task(args: tuple) -> CandidateFit:
     plugin, model, test, budget = args
     try:
         out = plugin.refit(model, test, budget)
-        out = search_candidate(plugin, out, None if budget is None else PROBE_BUDGETS * budget, MIN_GAIN)
+        out = search_candidate(plugin, out, budget, MIN_GAIN)
     except Exception as exc:  # noqa: BLE001 - the candidate is listed with its error, the diagnosis goes on
         out = CandidateFit(test.candidate, error=f"{type(exc).__name__}: {exc}")
     if out.model is not None:
@@ -190,24 +190,23 @@ class _Search:
         moved the model, the earlier ones are searched (checked) again from where it ended."""
         if not self.named:
             return model
-        budget = None if self.budget is None else PROBE_BUDGETS * self.budget
         self.say(f"searching the sizes of {', '.join(e.name for e in self.named)} ({SIZE_PROBE:.0%} either side "
                  "first) ...")
         start, last_move = model, -1
         for i, e in enumerate(self.named):
-            model, moved = self._search_size(model, e.name, budget)
+            model, moved = self._search_size(model, e.name)
             last_move = i if moved else last_move
         for e in self.named[:last_move]:
-            model, _ = self._search_size(model, e.name, budget)
+            model, _ = self._search_size(model, e.name)
         if model is not start:
             self.steps[-1] = self._refreshed(model, self.steps[-1], "the size search (below) moved the final model")
         return model
 
-    def _search_size(self, model: Fitted, name: str, budget: float | None) -> tuple[Fitted, bool]:
+    def _search_size(self, model: Fitted, name: str) -> tuple[Fitted, bool]:
         def run(fn: Any, tasks: list[tuple]) -> list[Any]:
             return self.pool.map(fn, tasks, desc=f"size search ({name})")
 
-        out, self.size_checks[name], note = search_size(run, self.shared, model, name, budget)
+        out, self.size_checks[name], note = search_size(run, self.shared, model, name, self.budget)
         if note:
             self.notes.append(f"size search: {name} {note}")
             self.doubts.setdefault(name, []).append(note)

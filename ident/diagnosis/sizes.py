@@ -68,19 +68,19 @@ def probe_task(args: tuple) -> Fitted | None:
 def search_size(run: Mapper, plugin: ModelPlugin, model: Fitted, name: str, budget: float | None,
                 min_gain: float = 1.0) -> tuple[Fitted, Checks, str]:
     """The size search of effect ``name`` from ``model`` (module docstring). ``run(fn, tasks)`` maps ``probe_task``
-    over the workers; ``plugin`` is what the tasks carry to them. A move that has lowered the training cost less
+    over the workers; ``plugin`` is what the tasks carry to them; ``budget`` is a candidate's, each probe may use
+    ``PROBE_BUDGETS`` of it. A move that has lowered the training cost less
     than ``min_gain`` times since the last check ends the search there, unchecked. Returns the model reached, the
     last round's probes (the check around it, or the move that failed when a small gain ended the search; empty when
     the rounds ran out first) and a sentence when the size moved."""
     cur, g, checked = model, None, model.train_cost
+    budget = None if budget is None else PROBE_BUDGETS * budget
     for _ in range(SIZE_ROUNDS):
         factors = (1.0 - SIZE_PROBE, 1.0 + SIZE_PROBE) if g is None else (g, g * g)
         probes = run(probe_task, [(plugin, cur, name, f, budget) for f in factors])
         better = [(p.train_cost, i) for i, p in enumerate(probes) if p is not None and p.train_cost < cur.train_cost]
         if not better:
-            if g is None:
-                return cur, list(zip(factors, probes)), _moved(name, model, cur)
-            if cur.train_cost * min_gain > checked:
+            if g is None or cur.train_cost * min_gain > checked:
                 return cur, list(zip(factors, probes)), _moved(name, model, cur)
             g, checked = None, cur.train_cost
             continue
