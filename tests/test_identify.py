@@ -329,3 +329,38 @@ def test_a_ringing_damped_within_a_few_periods_is_a_candidate() -> None:
     found = resolved_peak(segments, rate, peak)
     assert found == pytest.approx(f0, rel=0.01)
     assert resolved_peak(segments, rate, f0) is None             # a resolved peak needs nothing more
+
+
+class _Linear:
+    """A least-squares problem with OutputError's interface and counters (no FMU: the solver's own contract)."""
+
+    def __init__(self, m: int, n: int) -> None:
+        rng = np.random.default_rng(7)
+        self.A, self.b = rng.normal(size=(m, n)), rng.normal(size=m)
+        self.interrupted = self.exhausted = self.verbose = False
+        self.budget, self.points, self.jacobians = None, set(), 0
+
+    def residuals(self, theta: np.ndarray) -> np.ndarray:
+        self.points.add(np.asarray(theta, dtype=float).tobytes())
+        return self.A @ np.asarray(theta, dtype=float) - self.b
+
+    def jacobian(self, theta: np.ndarray) -> np.ndarray:
+        self.jacobians += 1
+        return self.A.copy()
+
+    def check_budget(self) -> None:
+        pass
+
+
+def test_ipopt_reaches_least_squares_with_one_jacobian_per_point() -> None:
+    """IPOPT's cost, gradient and Gauss-Newton Hessian come from the callbacks' numpy products: the optimum is the
+    least-squares solution, and each point's (costly, finite-difference) Jacobian is formed once, not once for the
+    gradient and again for the Hessian."""
+    from ident.fitting.identify import fit_ipopt
+
+    p = _Linear(20000, 6)
+    theta, stats = fit_ipopt(p, np.ones(6), np.full(6, -1e3), np.full(6, 1e3), 40)
+    exact = np.linalg.lstsq(p.A, p.b, rcond=None)[0]
+    assert theta == pytest.approx(exact, rel=1e-6, abs=1e-9)
+    assert stats["cost"] == pytest.approx(0.5 * float(np.sum((p.A @ exact - p.b) ** 2)) / 20000, rel=1e-9)
+    assert p.jacobians <= stats["iterations"] + 1 <= len(p.points)
