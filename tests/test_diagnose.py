@@ -19,6 +19,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -514,3 +515,37 @@ def test_the_stribeck_velocity_is_searched_no_lower_than_the_log_shows() -> None
     assert velocity.value(velocity.lo) == pytest.approx(0.1 * scales.v_l_percentiles[0], rel=1e-12)
     points = [p["ln_stribeck_velocity"] for p in grid("stribeck", scales)]
     assert min(points) == pytest.approx(velocity.lo, abs=1e-12) and max(points) < velocity.hi
+
+
+def test_viscous_friction_on_either_side_of_the_gear_is_told_apart_only_where_the_log_can() -> None:
+    """The twin check (``TwoInertiaPlugin.twin``, ``engine._twin_doubt``): a load-side viscous friction, once
+    accepted, is put on the motor side at the size the ratio carries over (b_m = r^2 b_l) and refitted. On a
+    torque-step log of a drive whose spring hardly deflects while sliding the two sides fit within ``SEPARABLE``
+    noise variances, and the name gets a doubt saying the log cannot tell them apart and what would; on the design's
+    log, which rings the spring, the motor side fits far worse and no doubt is added."""
+    from ident.diagnosis.engine import SEPARABLE, _twin_doubt
+    from ident.diagnosis.models import CandidateFit
+    from ident.diagnosis.models.two_inertia import TwoInertiaPlugin
+
+    deltas = {}
+    for excitation in ("steps", "default"):
+        log, truth = load(Case("single", 5102, "viscous_load", "medium", excitation), **SHORT)
+        plugin = TwoInertiaPlugin(log)
+        base = plugin.fit_base()
+        winner = plugin.refit(base, plugin.screen(base, ("viscous_load",))[0], 300.0)
+        b_l = winner.model.state.params.b_l
+        assert abs(b_l / library_truth("viscous_load", truth) - 1.0) < 0.5, b_l
+        rival, size, _ = plugin.twin_of(winner.model, "viscous_load")
+        assert rival == "viscous_motor" and f"{b_l * log.meta.r ** 2:.4g}" in size
+        twin = plugin.twin(winner.model, "viscous_load", 300.0)
+        assert twin.effects == ("viscous_motor",) and twin.state.params.b_l == 0.0 < twin.state.params.b_m
+        deltas[excitation] = twin.train_cost - winner.model.train_cost
+        doubts = _twin_doubt(plugin, winner, [winner], 300.0)
+        assert bool(doubts) == (deltas[excitation] < SEPARABLE), (excitation, deltas, doubts)
+        if doubts:
+            assert "cannot tell viscous_load from viscous_motor" in doubts[0] and "deflection" in doubts[0]
+            # a rival candidate of the same step that fits far worse does not hide the twin's refit
+            worse = CandidateFit("viscous_motor", replace(twin, train_cost=twin.train_cost + 1e6))
+            assert _twin_doubt(plugin, winner, [winner, worse], 300.0) == doubts
+    assert deltas["steps"] < SEPARABLE < deltas["default"], deltas
+    assert plugin.twin_of(winner.model, "hardening") is None and plugin.twin(winner.model, "hardening", 1.0) is None

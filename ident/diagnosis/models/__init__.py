@@ -134,6 +134,17 @@ class ModelPlugin(ABC):
         interval says); ``budget`` as ``refit``. None: the plug-in has no such refit (the local interval stands)."""
         return None
 
+    def twin_of(self, model: Fitted, name: str) -> tuple[str, str, str] | None:
+        """The rival effect that the model's own physics makes a near twin of effect ``name`` in ``model`` (e.g.
+        viscous friction on the other side of the gear, its size carried over by the ratio): (rival, the size
+        carried over, what a log needs to tell the two apart). None: ``name`` has no twin here."""
+        return None
+
+    def twin(self, model: Fitted, name: str, budget: float | None) -> Fitted | None:
+        """``model`` with ``twin_of``'s rival in place of ``name`` at the carried-over size, refitted from there
+        (``budget`` as ``refit``). None: no twin."""
+        return None
+
     @abstractmethod
     def over_noise(self, model: Fitted) -> tuple[float, float] | None:
         """(training, held-back) residual RMS over the sensor noise, or None where the noise is not known."""

@@ -59,6 +59,9 @@ REFIT_ITER = 30
 #: differences (~1e-3 sigma), small against the motion (a linear response)
 SCREEN_RESPONSE_SIGMA = 1.0
 FLEXIBILITY = "flexibility"
+#: effects the gear makes near twins (``TwoInertiaPlugin.twin``): effect -> (its twin, its parameter, the twin's, the
+#: power of the ratio r = q_l / q_m that carries the size over: b_m = r^2 b_l)
+TWINS = {"viscous_motor": ("viscous_load", "b_m", "b_l", -2), "viscous_load": ("viscous_motor", "b_l", "b_m", 2)}
 
 
 @dataclass
@@ -409,6 +412,42 @@ class TwoInertiaPlugin(ModelPlugin):
         finally:
             problem.close()
         return self.evaluate(model.effects, theta, st.base, st.scales, sens=st.sens)
+
+    def twin_of(self, model: Fitted, name: str) -> tuple[str, str, str] | None:
+        """Viscous friction on the other side of the gear (``TWINS``): a load-side coefficient b_l acts on the motor
+        as r^2 b_l, so the two sides differ only through the spring's deflection, by about b d' / K in the load
+        angle."""
+        if name not in TWINS or model.state.rigid or TWINS[name][0] in model.effects:
+            return None
+        rival, own_param, rival_param, power = TWINS[name]
+        value = float(getattr(model.state.params, own_param)) * model.state.params.r ** power
+        carried = f"{own_param} r^2" if power == 2 else f"{own_param} / r^2"
+        return (rival, f"{rival_param} = {value:.4g} N.m.s/rad = {carried}",
+                "a log whose spring deflection changes fast (a ringing excited hard: b x the deflection rate / K "
+                "above the load sensor's noise) would tell the two sides apart")
+
+    def twin(self, model: Fitted, name: str, budget: float | None) -> Fitted | None:
+        """The twin (``twin_of``) starts at the carried-over size, every other unknown where ``model`` has it."""
+        if self.twin_of(model, name) is None:
+            return None
+        rival, own_param, _, power = TWINS[name]
+        st = model.state
+        coord = coordinates(rival, st.scales, st.sens.get(rival))[0]
+        head = st.theta.copy()
+        head[[4 + i for i, c in enumerate(_layout(model)) if c.effect == name]] = coord.x_of(
+            float(getattr(st.params, own_param)) * st.params.r ** power)
+        effects = tuple(rival if e == name else e for e in model.effects)
+        problem = st.problem(self.full, effects, self.stop, self.sigma, central=False,
+                             budget=EvaluationBudget(None if budget is None else budget * self.stop))
+        try:
+            lo, hi = problem.bounds()
+            try:
+                theta = _ipopt_or_best(problem, np.clip(head, lo, hi), lo, hi)
+            except BudgetExceeded:
+                theta = problem.best[1] if problem.best is not None else head
+        finally:
+            problem.close()
+        return self.evaluate(effects, theta, st.base, st.scales, sens=st.sens)
 
     def _cov(self, model: Fitted) -> np.ndarray:
         """The larger (per parameter) of the sandwich and noise-only covariances of the unknowns, as
