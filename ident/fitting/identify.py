@@ -350,29 +350,26 @@ class _GaussNewton:
 
 
 def _objective_callback(problem: OutputError, n: int, m: int) -> Any:
-    """The cost as a CasADi callback of theta (n unknowns, ``_GaussNewton``), whose Jacobian (the gradient, a row)
-    is a second callback; ``hessian``: the Gauss-Newton Hessian's callback for ``hess_lag`` (its upper triangle,
-    times the objective's multiplier)."""
+    """(cost, Hessian): the cost as a CasADi callback of theta (n unknowns, m residuals; ``_GaussNewton``), whose
+    Jacobian (the gradient, a row) is a second callback, and the Gauss-Newton Hessian's callback for ``hess_lag``
+    (its upper triangle, times the objective's multiplier)."""
     import casadi as ca
 
     gn = _GaussNewton(problem, n, m)
 
-    class Grad(ca.Callback):
+    class Constructed(ca.Callback):
         def __init__(self, name: str):
             ca.Callback.__init__(self)
             self.construct(name, {})
 
+    class Grad(Constructed):
         def get_n_in(self): return 2
         def get_n_out(self): return 1
         def get_sparsity_in(self, i): return ca.Sparsity.dense(n, 1) if i == 0 else ca.Sparsity.dense(1, 1)
         def get_sparsity_out(self, i): return ca.Sparsity.dense(1, n)
         def eval(self, arg): return [_guarded(problem, gn.gradient, arg[0], (n,)).reshape(1, n)]
 
-    class Cost(ca.Callback):
-        def __init__(self, name: str):
-            ca.Callback.__init__(self)
-            self.construct(name, {})
-
+    class Cost(Constructed):
         def get_n_in(self): return 1
         def get_n_out(self): return 1
         def get_sparsity_in(self, i): return ca.Sparsity.dense(n, 1)
@@ -385,11 +382,7 @@ def _objective_callback(problem: OutputError, n: int, m: int) -> Any:
             x, out = ca.MX.sym("x", n), ca.MX.sym("out", 1)
             return ca.Function(name, [x, out], [self.grad_cb(x, out)], inames, onames)
 
-    class Hess(ca.Callback):
-        def __init__(self, name: str):
-            ca.Callback.__init__(self)
-            self.construct(name, {})
-
+    class Hess(Constructed):
         def get_n_in(self): return 4
         def get_n_out(self): return 1
         def get_name_in(self, i): return ("x", "p", "lam_f", "lam_g")[i]
