@@ -75,8 +75,9 @@ def test_score_test_is_the_regression_lm_statistic():
 
 
 def test_screen_bounded_parameters_and_grids():
-    """A parameter that can only grow from 0 gets half the tail when the step points the right way and p = 1 when
-    it does not; a grid's best point pays for the search (p-value x grid size)."""
+    """A parameter that can only grow from 0 gets half the tail when the step points the right way, the whole tail
+    when every grid point's step points the wrong way (the sign is not trusted: a model that stands in for the
+    effect points it so); a grid's best point pays for the search (p-value x grid size)."""
     assert screening.p_value(4.0, 1, True, True) == pytest.approx(0.5 * stats.chi2.sf(4.0, 1))
     assert screening.p_value(4.0, 1, False, True) == 1.0
     pts = [({"v": 1.0}, 10.0, 9.0, np.array([0.1]), True), ({"v": 2.0}, 30.0, 20.0, np.array([0.2]), True),
@@ -84,6 +85,14 @@ def test_screen_bounded_parameters_and_grids():
     t = screening.best_of_grid("x", pts, 1, True)
     assert t.grid_point == {"v": 2.0} and t.statistic == 30.0
     assert t.p_value == pytest.approx(3 * 0.5 * stats.chi2.sf(30.0, 1))
+    # every step points the wrong way: the sign is not trusted, a significant score still sends it to its refit
+    # (whole tail, x grid size); a small one rules it out
+    wrong = [({"v": 1.0}, 60.0, 9.0, np.array([-0.1]), False), ({"v": 2.0}, 40.0, 9.0, np.array([-0.2]), False)]
+    t = screening.best_of_grid("x", wrong, 1, True)
+    assert t.passed and t.statistic == 60.0 and t.p_value == pytest.approx(2 * stats.chi2.sf(60.0, 1))
+    assert "significant: refitted" in t.note
+    t = screening.best_of_grid("x", [({}, 4.0, 3.0, np.array([-0.1]), False)], 1, True)
+    assert not t.passed and t.p_value == pytest.approx(stats.chi2.sf(4.0, 1)) and "not supported" in t.note
 
 
 def test_hysteresis_coordinates_stay_in_the_fmus_range():
