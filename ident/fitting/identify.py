@@ -327,8 +327,8 @@ class _GaussNewton:
     rows cost ~0.2 s per IPOPT iteration on a 7 s log at 5 kHz (measured: half of a size probe's 12 s, the
     simulations the other half), and it asked for the Jacobian twice per point (gradient and Hessian)."""
 
-    def __init__(self, problem: OutputError, n: int, m: int):
-        self.problem, self.n, self.m = problem, n, m
+    def __init__(self, problem: OutputError, m: int):
+        self.problem, self.m = problem, m
         self._jac: tuple[bytes, np.ndarray] | None = None
 
     def _jacobian(self, x: np.ndarray) -> np.ndarray:
@@ -355,7 +355,7 @@ def _objective_callback(problem: OutputError, n: int, m: int) -> Any:
     (its upper triangle, times the objective's multiplier)."""
     import casadi as ca
 
-    gn = _GaussNewton(problem, n, m)
+    gn = _GaussNewton(problem, m)
 
     class Constructed(ca.Callback):
         def __init__(self, name: str):

@@ -327,14 +327,27 @@ class TwoInertiaPlugin(ModelPlugin):
             return self._rigid()
         effects = tuple(e for e in model.effects if e != name)
         keep = [*range(4), *(4 + i for i, c in enumerate(_layout(model)) if c.effect != name)]
+        return self._fit_from(model, effects, st.theta[keep], budget, max_iter=REFIT_ITER, clip=False)
+
+    def _fit_from(self, model: Fitted, effects: tuple[str, ...], head: np.ndarray, budget: float | None, *,
+                  max_iter: int = 500, pin: list[int] | tuple[int, ...] = (), clip: bool = True) -> Fitted:
+        """``model``'s drive with ``effects`` on, refitted on the training part by IPOPT from ``head`` within
+        ``budget`` (as ``refit``; a fit that runs out keeps the best point it simulated), simulated over the whole
+        log. ``pin``: unknowns held where ``head`` has them (inside their bounds); ``clip``: the start moved inside
+        the bounds."""
+        st = model.state
         problem = st.problem(self.full, effects, self.stop, self.sigma, central=False,
                              budget=EvaluationBudget(None if budget is None else budget * self.stop))
         try:
-            theta0 = st.theta[keep]
+            lo, hi = problem.bounds()
+            if pin:
+                problem.pinned = {i: float(np.clip(head[i], lo[i], hi[i])) for i in pin}
+                lo, hi = problem.bounds()
+            start = np.clip(head, lo, hi) if clip else head
             try:
-                theta = _ipopt_or_best(problem, theta0, *problem.bounds(), REFIT_ITER)
+                theta = _ipopt_or_best(problem, start, lo, hi, max_iter)
             except BudgetExceeded:
-                theta = problem.best[1] if problem.best is not None else theta0
+                theta = problem.best[1] if problem.best is not None else start
         finally:
             problem.close()
         return self.evaluate(effects, theta, st.base, st.scales, sens=st.sens)
@@ -398,56 +411,33 @@ class TwoInertiaPlugin(ModelPlugin):
         head = st.theta.copy()
         head[held] += delta
         head[free] += cov[np.ix_(free, held)] @ np.linalg.lstsq(cov[np.ix_(held, held)], delta, rcond=None)[0]
-        problem = st.problem(self.full, model.effects, self.stop, self.sigma, central=False,
-                             budget=EvaluationBudget(None if budget is None else budget * self.stop))
-        try:
-            lo, hi = problem.bounds()
-            problem.pinned = {i: float(np.clip(head[i], lo[i], hi[i])) for i in held}
-            lo, hi = problem.bounds()
-            head = np.clip(head, lo, hi)
-            try:
-                theta = _ipopt_or_best(problem, head, lo, hi)
-            except BudgetExceeded:
-                theta = problem.best[1] if problem.best is not None else head
-        finally:
-            problem.close()
-        return self.evaluate(model.effects, theta, st.base, st.scales, sens=st.sens)
+        return self._fit_from(model, model.effects, head, budget, pin=held)
 
     def twin_of(self, model: Fitted, name: str) -> tuple[str, str, str] | None:
         """Viscous friction on the other side of the gear (``TWINS``): a load-side coefficient b_l acts on the motor
         as r^2 b_l, so the two sides differ only through the spring's deflection, by about b d' / K in the load
         angle."""
-        if name not in TWINS or model.state.rigid or TWINS[name][0] in model.effects:
+        carried = _carried(model, name)
+        if carried is None:
             return None
-        rival, own_param, rival_param, power = TWINS[name]
-        value = float(getattr(model.state.params, own_param)) * model.state.params.r ** power
-        carried = f"{own_param} r^2" if power == 2 else f"{own_param} / r^2"
-        return (rival, f"{rival_param} = {value:.4g} N.m.s/rad = {carried}",
+        rival, value = carried
+        own_param, rival_param, power = TWINS[name][1:]
+        how = f"{own_param} r^2" if power == 2 else f"{own_param} / r^2"
+        return (rival, f"{rival_param} = {value:.4g} N.m.s/rad = {how}",
                 "a log whose spring deflection changes fast (a ringing excited hard: b x the deflection rate / K "
                 "above the load sensor's noise) would tell the two sides apart")
 
     def twin(self, model: Fitted, name: str, budget: float | None) -> Fitted | None:
         """The twin (``twin_of``) starts at the carried-over size, every other unknown where ``model`` has it."""
-        if self.twin_of(model, name) is None:
+        carried = _carried(model, name)
+        if carried is None:
             return None
-        rival, own_param, _, power = TWINS[name]
+        rival, value = carried
         st = model.state
-        coord = coordinates(rival, st.scales, st.sens.get(rival))[0]
         head = st.theta.copy()
-        head[[4 + i for i, c in enumerate(_layout(model)) if c.effect == name]] = coord.x_of(
-            float(getattr(st.params, own_param)) * st.params.r ** power)
-        effects = tuple(rival if e == name else e for e in model.effects)
-        problem = st.problem(self.full, effects, self.stop, self.sigma, central=False,
-                             budget=EvaluationBudget(None if budget is None else budget * self.stop))
-        try:
-            lo, hi = problem.bounds()
-            try:
-                theta = _ipopt_or_best(problem, np.clip(head, lo, hi), lo, hi)
-            except BudgetExceeded:
-                theta = problem.best[1] if problem.best is not None else head
-        finally:
-            problem.close()
-        return self.evaluate(effects, theta, st.base, st.scales, sens=st.sens)
+        head[[4 + i for i, c in enumerate(_layout(model)) if c.effect == name]] = coordinates(
+            rival, st.scales, st.sens.get(rival))[0].x_of(value)
+        return self._fit_from(model, tuple(rival if e == name else e for e in model.effects), head, budget)
 
     def _cov(self, model: Fitted) -> np.ndarray:
         """The larger (per parameter) of the sandwich and noise-only covariances of the unknowns, as
@@ -528,6 +518,15 @@ def _ipopt_or_best(problem: ModelProblem, head: np.ndarray, lo: np.ndarray, hi: 
         raise BudgetExceeded(f"the fit used up its budget of {problem.budget.limit / problem.stop:.4g} simulations "
                              "before it converged")
     return problem.best[1] if problem.best is not None else theta
+
+
+def _carried(model: Fitted, name: str) -> tuple[str, float] | None:
+    """(the twin of effect ``name``, its size carried over by the gear ratio) in ``model`` (``TWINS``); None when
+    ``name`` has no twin or the twin is already in the model."""
+    if name not in TWINS or model.state.rigid or TWINS[name][0] in model.effects:
+        return None
+    rival, own_param, _, power = TWINS[name]
+    return rival, float(getattr(model.state.params, own_param)) * model.state.params.r ** power
 
 
 def _fmu_effects(effects: tuple[str, ...]) -> tuple[str, ...]:
