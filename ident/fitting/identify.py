@@ -21,7 +21,8 @@ Method (the exact model inside the fit, never a smoothed copy):
    the current 3-sigma uncertainty region (``_nearly_linear``: then Gauss-Newton starts inside the basin); where
    not even a 1.3x longer window is, the old grid (``_scale_scan``) re-centres the fit. The first window's best
    distinct optima are carried along as competing tracks until the data reject them (likelihood ratio at 99.9 %);
-   several survivors at the end mean the log does not decide between them (multi-modal).
+   several survivors at the end mean the log does not decide between them (multi-modal). The whole-log optimum's
+   initial deflection is then compared with every basin of it (``_other_basin``), and refitted from a lower one.
 4. **Noise, uncertainty, identifiability**: one load-noise estimate (``noise.residual_noise_std``: the white part of
    the whole-log residual) weighs the rows, scales the Cramer-Rao bound, is reported as ``sigma_load_rad`` and is
    the yardstick of the model-mismatch warning. Two covariances of the log-parameters: *Cramer-Rao* ((J^T J)^-1
@@ -607,6 +608,7 @@ def fit_tracks(log: DriveLog, base: DriveParams, make: Callable[..., OutputError
     problem, tracks = _continuation(log, base, start, tracks, sigma, stages, stop, growth, stage_iter, max_iter,
                                     progress, make, verbose)
     try:
+        tracks = _other_basin(problem, tracks, stages, stage_iter, progress)
         return _rescue(problem, tracks, stages, stage_iter, progress), problem, start, stages
     except BaseException:
         problem.close()
@@ -849,15 +851,72 @@ def _rescue(problem: OutputError, tracks: list[Track], stages: list[dict[str, An
     return tracks
 
 
-def _d0_scan(problem: OutputError, theta: np.ndarray, points: int) -> np.ndarray:
+def _other_basin(problem: OutputError, tracks: list[Track], stages: list[dict[str, Any]], iterations: int,
+                 progress: bool) -> list[Track]:
+    """The whole-log optimum's initial deflection checked against every basin (``_d0_scan`` at the optimum, others
+    held); a basin lower by more than one noise variance is refitted (IPOPT, the rescue's steps) and the better
+    optimum kept. Each window scans before its fit, but from the previous window's optimum, where the basins lie
+    elsewhere; the last window has no next one to correct it. Measured on an independent default-design log (seed
+    4219, 4 s at 10 kHz): the optimum sat at 0.44 band, 306 noise variances above the basin at 0.19 band, and K*,
+    J_l*, f_l* were 3.3 bound sigmas off; the misfit (1.011x the noise) was inside the noise's own spread, so no
+    residual test could have told. Costs ~ 60 simulations of the log."""
+    best = tracks[0]
+    theta = _d0_scan(problem, best.theta, 10, refine=True)
+    if problem.cost(theta) >= best.cost - 1.0:
+        return tracks
+    say(progress, f"  initial deflection: a lower basin at {theta[3]:+.3f} band (was {best.theta[3]:+.3f}); "
+        "refitting from it")
+    lo, hi = problem.bounds()
+    problem.fd_steps = np.minimum(SEARCH_STEP * np.sqrt(np.maximum(np.diag(best.cov), 0.0)), MAX_SEARCH_STEP) \
+        if best.cov is not None else None
+    try:
+        theta, info = fit_ipopt(problem, theta, lo, hi, iterations)
+    finally:
+        problem.fd_steps = None
+    tracks, _ = _settle(problem, tracks + [Track(theta, info=info)])
+    stages.append({"window_s": stages[-1]["window_s"], **tracks[0].info, "basin_d0": float(theta[3]),
+                   "over_noise": over_noise(problem, tracks[0].theta),
+                   **dict(zip(NAMES, map(float, np.exp(tracks[0].theta[:3]))))})
+    return tracks
+
+
+def _d0_scan(problem: OutputError, theta: np.ndarray, points: int, refine: bool = False) -> np.ndarray:
     """The best of ``theta`` and ``points`` initial deflections evenly inside the static band (others held). The
     initial deflection decides the load's first breakaway and, through where it sticks, every later one: the cost
     is multi-modal in it, and a wrong basin is a local minimum the other parameters cannot leave (measured: a first
-    window chose -0.62 band where the whole log wanted 0; its cost was 12 % higher)."""
-    cands = [theta] + [np.concatenate([theta[:3], [d], theta[4:]]) for d in (np.arange(points) + 0.5) / points * 2 - 1]
-    best = min(cands, key=problem.cost)
+    window chose -0.62 band where the whole log wanted 0; its cost was 12 % higher).
+
+    ``refine``: basins are compared by their minima, not by the grid's values: each grid point lower than its
+    neighbours is refined within one spacing either side (bounded Brent, ``D0_REFINE_EVALS`` evaluations). Only at
+    an optimum (``_other_basin``): before a window's fit the lowest refined basin is not the fit's best start
+    (measured on two independent logs, a chirp and a step log: the fits from there ended at 540-2000x the noise)."""
+    grid = (np.arange(points) + 0.5) / points * 2 - 1
+    at = [np.concatenate([theta[:3], [d], theta[4:]]) for d in grid]
+    costs = np.array([problem.cost(x) for x in at])
+    cands = [(problem.cost(theta), theta)] + list(zip(costs, at))
+    h = 2.0 / points
+    for i in range(points) if refine else ():
+        if costs[i] <= costs[max(i - 1, 0)] and costs[i] <= costs[min(i + 1, points - 1)] and np.isfinite(costs[i]):
+            cands.append(_d0_refine(problem, at[i], max(grid[i] - h, -1.0), min(grid[i] + h, 1.0)))
+    best = min(cands, key=lambda c: c[0])[1]
     problem.clear_cache()
     return best
+
+
+D0_REFINE_EVALS = 12  # Brent's evaluations per basin: ~ a hundredth of a grid spacing (IPOPT polishes the rest)
+
+
+def _d0_refine(problem: OutputError, theta: np.ndarray, lo: float, hi: float) -> tuple[float, np.ndarray]:
+    """(cost, theta) at the minimum of the initial deflection in [lo, hi], others held (bounded Brent)."""
+    from scipy.optimize import minimize_scalar
+
+    def at(d: float) -> np.ndarray:
+        return np.concatenate([theta[:3], [d], theta[4:]])
+
+    res = minimize_scalar(lambda d: problem.cost(at(d)), bounds=(lo, hi), method="bounded",
+                          options={"maxiter": D0_REFINE_EVALS, "xatol": 1e-3 * (hi - lo)})
+    best = (problem.cost(theta), theta)
+    return min(best, (float(res.fun), at(float(res.x))), key=lambda c: c[0])
 
 
 def _nearly_linear(problem: OutputError, theta: np.ndarray, cov: np.ndarray) -> bool:
