@@ -843,11 +843,7 @@ def _rescue(problem: OutputError, tracks: list[Track], stages: list[dict[str, An
     say(progress, "  the residual stays above the noise: refitting from the optimum, then from 5 initial deflections")
     lo, hi = problem.bounds()
     best = tracks[0]
-    problem.fd_steps = np.minimum(SEARCH_STEP * np.sqrt(np.maximum(np.diag(best.cov), 0.0)), MAX_SEARCH_STEP)
-    try:
-        theta, info = fit_ipopt(problem, best.theta, lo, hi, iterations)
-    finally:
-        problem.fd_steps = None
+    theta, info = _fit_searching(problem, best.theta, best.cov, iterations)
     tracks.append(Track(theta, info=info))
     if not at_noise(problem, theta, strict=True):
         for d in np.linspace(-0.8, 0.8, 5):
@@ -855,9 +851,7 @@ def _rescue(problem: OutputError, tracks: list[Track], stages: list[dict[str, An
                                     iterations)
             tracks.append(Track(theta, info=info))
     tracks, _ = _settle(problem, tracks)
-    stages.append({"window_s": stages[-1]["window_s"], **tracks[0].info, "restarts": len(tracks),
-                   "over_noise": over_noise(problem, tracks[0].theta),
-                   **dict(zip(NAMES, map(float, np.exp(tracks[0].theta[:3]))))})
+    stages.append(_stage_row(problem, tracks[0], stages[-1]["window_s"], restarts=len(tracks)))
     return tracks
 
 
@@ -876,17 +870,9 @@ def _other_basin(problem: OutputError, tracks: list[Track], stages: list[dict[st
         return tracks
     say(progress, f"  initial deflection: a lower basin at {theta[3]:+.3f} band (was {best.theta[3]:+.3f}); "
         "refitting from it")
-    lo, hi = problem.bounds()
-    problem.fd_steps = np.minimum(SEARCH_STEP * np.sqrt(np.maximum(np.diag(best.cov), 0.0)), MAX_SEARCH_STEP) \
-        if best.cov is not None else None
-    try:
-        theta, info = fit_ipopt(problem, theta, lo, hi, iterations)
-    finally:
-        problem.fd_steps = None
+    theta, info = _fit_searching(problem, theta, best.cov, iterations)
     tracks, _ = _settle(problem, tracks + [Track(theta, info=info)])
-    stages.append({"window_s": stages[-1]["window_s"], **tracks[0].info, "basin_d0": float(theta[3]),
-                   "over_noise": over_noise(problem, tracks[0].theta),
-                   **dict(zip(NAMES, map(float, np.exp(tracks[0].theta[:3]))))})
+    stages.append(_stage_row(problem, tracks[0], stages[-1]["window_s"], basin_d0=float(theta[3])))
     return tracks
 
 
@@ -917,7 +903,8 @@ D0_REFINE_EVALS = 12  # Brent's evaluations per basin: ~ a hundredth of a grid s
 
 
 def _d0_refine(problem: OutputError, theta: np.ndarray, lo: float, hi: float) -> tuple[float, np.ndarray]:
-    """(cost, theta) at the minimum of the initial deflection in [lo, hi], others held (bounded Brent)."""
+    """(cost, theta) at the minimum of the initial deflection in [lo, hi], others held (bounded Brent); the grid
+    point it starts from stays a candidate of ``_d0_scan``."""
     from scipy.optimize import minimize_scalar
 
     def at(d: float) -> np.ndarray:
@@ -925,8 +912,7 @@ def _d0_refine(problem: OutputError, theta: np.ndarray, lo: float, hi: float) ->
 
     res = minimize_scalar(lambda d: problem.cost(at(d)), bounds=(lo, hi), method="bounded",
                           options={"maxiter": D0_REFINE_EVALS, "xatol": 1e-3 * (hi - lo)})
-    best = (problem.cost(theta), theta)
-    return min(best, (float(res.fun), at(float(res.x))), key=lambda c: c[0])
+    return float(res.fun), at(float(res.x))
 
 
 def _nearly_linear(problem: OutputError, theta: np.ndarray, cov: np.ndarray) -> bool:
@@ -997,10 +983,8 @@ def _continuation(log: DriveLog, base: DriveParams, start: dict[str, Any], track
         except BaseException:  # Ctrl-C, a failed fit: the FMU instance and its folder go now
             problem.close()
             raise
-        stages.append({"window_s": problem.stop / rate, **fitted[0].info, "evaluations": problem.evaluations,
-                       "grid": rescan, "tracks": len(fitted), "at_noise": ok,
-                       "over_noise": over_noise(problem, fitted[0].theta),
-                       **dict(zip(NAMES, map(float, np.exp(fitted[0].theta[:3]))))})
+        stages.append(_stage_row(problem, fitted[0], problem.stop / rate, evaluations=problem.evaluations,
+                                 grid=rescan, tracks=len(fitted), at_noise=ok))
         _say_stage(progress, stages[-1], len(fitted))
         if previous_ok and not ok and not rescan:
             stages[-1]["discarded"] = True
@@ -1028,15 +1012,28 @@ def _fit_window(problem: OutputError, tracks: list[Track], rescan: bool, stage: 
     for t in tracks:
         theta = (_scale_scan(problem, t.theta, lo, hi, stage, f_peak_hz) if rescan
                  else _d0_scan(problem, t.theta, 10))
-        cov = tracks[0].cov
-        problem.fd_steps = (np.minimum(SEARCH_STEP * np.sqrt(np.maximum(np.diag(cov), 0.0)), MAX_SEARCH_STEP)
-                            if cov is not None else None)
-        try:
-            theta, info = fit_ipopt(problem, theta, lo, hi, iterations)
-        finally:
-            problem.fd_steps = None
+        theta, info = _fit_searching(problem, theta, tracks[0].cov, iterations)
         fitted.append(Track(theta, info=info))
     return _settle(problem, fitted)
+
+
+def _fit_searching(problem: OutputError, theta: np.ndarray, cov: np.ndarray | None, iterations: int
+                   ) -> tuple[np.ndarray, dict[str, Any]]:
+    """IPOPT from ``theta`` with finite-difference steps of ``SEARCH_STEP`` x the standard deviations of ``cov``
+    (at most ``MAX_SEARCH_STEP``; the micro-steps without ``cov``): see ``_fit_window`` for why."""
+    lo, hi = problem.bounds()
+    problem.fd_steps = (np.minimum(SEARCH_STEP * np.sqrt(np.maximum(np.diag(cov), 0.0)), MAX_SEARCH_STEP)
+                        if cov is not None else None)
+    try:
+        return fit_ipopt(problem, theta, lo, hi, iterations)
+    finally:
+        problem.fd_steps = None
+
+
+def _stage_row(problem: OutputError, track: Track, window_s: float, **extra: Any) -> dict[str, Any]:
+    """One row of the fit's stages: the window, IPOPT's report, ``extra``, the misfit and the estimates."""
+    return {"window_s": window_s, **track.info, **extra, "over_noise": over_noise(problem, track.theta),
+            **dict(zip(NAMES, map(float, np.exp(track.theta[:3]))))}
 
 
 def _say_stage(progress: bool, stage: dict[str, Any], tracks: int) -> None:
