@@ -253,7 +253,10 @@ def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -
         def probe_size(self, model, name, factor, budget):
             return fitted(model.state.size * factor, model.state.floor, model.state.n)
 
-    class NoProbes:
+        def size_inflation(self, model, name):
+            return 1.0   # the residual is white noise
+
+    class NoProbes(Profile):
         def probe_size(self, model, name, factor, budget):
             return None
 
@@ -273,7 +276,7 @@ def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -
     assert not kept.size_moved and kept.model.state.size == 1.0 and kept.size_probes == 0
     assert not near.size_unsettled and not small.size_unsettled
     # a profile that keeps falling: the search uses up its rounds still moving, and says so
-    class Falling:
+    class Falling(Profile):
         def probe_size(self, model, name, factor, budget):
             m = fitted(model.state.size * factor)
             m.train_cost = 1000.0 + 1e4 / m.state.size
@@ -286,7 +289,7 @@ def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -
     # a profile that keeps falling by less than one residual variance a round (0.01 noise variances, the residual
     # variance here 2): chance, not a better fit; the search neither moves nor leaves its rival unsettled (measured:
     # a hysteresis rival crept 8 rounds for 0.08 noise variances and made the right name tentative)
-    class Creeping:
+    class Creeping(Profile):
         def probe_size(self, model, name, factor, budget):
             m = fitted(model.state.size * factor)
             m.train_cost = 1000.0 - 0.1 * math.log(m.state.size)
@@ -301,6 +304,51 @@ def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -
     assert not quiet.size_moved and quiet.size_probes == 0
     failed = search_candidate(Profile(), CandidateFit("viscous_motor", error="no fit"), None, 1.01)
     assert failed.model is None and failed.size_probes == 0
+
+
+def test_the_size_search_counts_chance_with_the_residuals_correlation() -> None:
+    """``sizes._better``: a probe fits better only when its training cost falls by more than one residual variance
+    times the size's inflation (``size_inflation``: its sandwich over its noise-only variance). On the stalled profile
+    of the test above the first check falls by 50 residual variances: a move with white residuals, chance with
+    residuals correlated 100x (a model far from its log: measured on an actuator-lag log, a rival's search moved 8
+    rounds for 10-280 residual variances a round). Through the FMU, the inflation is about 1 for the right candidate
+    refitted to the noise and far above it for wrong ones that leave the load's misfit."""
+    from types import SimpleNamespace
+
+    from ident.diagnosis.models import CandidateFit
+    from ident.diagnosis.models.two_inertia import TwoInertiaPlugin
+    from ident.diagnosis.sizes import search_candidate
+
+    class Stalled:
+        def __init__(self, inflation: float):
+            self.inflation = inflation
+
+        @staticmethod
+        def fitted(size: float) -> Fitted:
+            m = Fitted(("viscous_motor",), 1000.0 + 1e4 * math.log(size / 6.0) ** 2, 0.0, np.ones(1), 500, 5)
+            m.state = SimpleNamespace(size=size, sim=None)
+            return m
+
+        def probe_size(self, model, name, factor, budget):
+            return self.fitted(model.state.size * factor)
+
+        def size_inflation(self, model, name):
+            return self.inflation
+
+    white = search_candidate(Stalled(1.0), CandidateFit("viscous_motor", Stalled.fitted(1.0)), None, 1.01)
+    assert white.size_moved
+    correlated = search_candidate(Stalled(100.0), CandidateFit("viscous_motor", Stalled.fitted(1.0)), None, 1.01)
+    assert not correlated.size_moved and correlated.size_probes == 2
+    log, _ = load(Case("single", 5102, "viscous_load", "medium", "default"), **SHORT)
+    plugin = TwoInertiaPlugin(log)
+    base = plugin.fit_base()
+    tests = {t.candidate: t for t in plugin.screen(base, ("viscous_load", "asymmetric_friction", "hardening"))}
+    fits = {name: plugin.refit(base, t, 300.0).model for name, t in tests.items()}
+    assert plugin.over_noise(fits["viscous_load"])[0] < 1.01
+    assert plugin.size_inflation(fits["viscous_load"], "viscous_load") < 2.0
+    for wrong in ("asymmetric_friction", "hardening"):
+        assert plugin.over_noise(fits[wrong])[0] > 1.2
+        assert plugin.size_inflation(fits[wrong], wrong) > 20.0, wrong
 
 
 def test_a_candidate_out_of_budget_blocks_a_confident_name():

@@ -211,7 +211,8 @@ class _Search:
         def run(fn: Any, tasks: list[tuple]) -> list[Any]:
             return self.pool.map(fn, tasks, desc=f"size search ({name})")
 
-        out, self.size_checks[name], note = search_size(run, self.shared, model, name, self.budget)
+        out, self.size_checks[name], note = search_size(run, self.shared, model, name, self.budget,
+                                                        inflation=lambda m: self.plugin.size_inflation(m, name))
         if note:
             self.notes.append(f"size search: {name} {note}")
             self.doubts.setdefault(name, []).append(note)

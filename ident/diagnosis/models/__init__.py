@@ -134,6 +134,13 @@ class ModelPlugin(ABC):
         interval says); ``budget`` as ``refit``. None: the plug-in has no such refit (the local interval stands)."""
         return None
 
+    def size_inflation(self, model: Fitted, name: str) -> float:
+        """How much more effect ``name``'s size varies with the residual's correlation allowed than with white
+        noise: its sandwich variance over its noise-only variance in ``model`` (1 where the residual is the
+        sensor's white noise). The size search scales what chance gives a profile point by it
+        (``ident.diagnosis.sizes``). Default 1: a plug-in without ``probe_size`` never searches."""
+        return 1.0
+
     def twin_of(self, model: Fitted, name: str) -> tuple[str, str, str] | None:
         """The rival effect that the model's own physics makes a near twin of effect ``name`` in ``model`` (e.g.
         viscous friction on the other side of the gear, its size carried over by the ratio): (rival, the size

@@ -75,6 +75,7 @@ class TwoInertiaState:
     scales: LogScales | None
     sim: dict[str, np.ndarray] | None = None
     cov: np.ndarray | None = None
+    covs: tuple[np.ndarray, np.ndarray] | None = None   # (noise-only, sandwich) that ``cov`` is made of
     rigid: bool = False
     sens: Sensitivity = field(default_factory=dict)
 
@@ -168,7 +169,7 @@ class TwoInertiaPlugin(ModelPlugin):
         if st.rigid or st.sim is not None:
             return model
         out = self.evaluate(model.effects, st.theta, st.base, st.scales, keep=True, sens=st.sens)
-        out.state.cov = st.cov
+        out.state.cov, out.state.covs = st.cov, st.covs
         return out
 
     def candidates(self, model: Fitted) -> tuple[str, ...]:
@@ -444,14 +445,34 @@ class TwoInertiaPlugin(ModelPlugin):
         ``identify`` reports (computed once per model)."""
         st = model.state
         if st.cov is None:
+            noise, sand = self._covs(model)
+            st.cov = np.where(np.diag(sand)[:, None] >= np.diag(noise)[:, None], sand, noise)
+        return st.cov
+
+    def _covs(self, model: Fitted) -> tuple[np.ndarray, np.ndarray]:
+        """(noise-only, sandwich) covariances of the unknowns (``identify.covariances``, blocks of 20 ms)."""
+        st = model.state
+        if st.covs is None:
             problem = st.problem(self.full, model.effects, self.stop, self.sigma)
             try:
                 block = max(10, int(self.full.meta.sample_rate_hz / 50))
                 noise, sand, _ = covariances(problem, st.theta, block)
             finally:
                 problem.close()
-            st.cov = np.where(np.diag(sand)[:, None] >= np.diag(noise)[:, None], sand, noise)
-        return st.cov
+            st.covs = (noise, sand)
+        return st.covs
+
+    def size_inflation(self, model: Fitted, name: str) -> float:
+        """The sandwich variance of the effect's size over its noise-only variance, along the direction its size
+        search moves (its linear coordinates scaled together)."""
+        st = model.state
+        held = [4 + i for i, c in enumerate(_layout(model)) if c.effect == name and not c.log]
+        if st.rigid or not held:
+            return 1.0
+        noise, sand = self._covs(model)
+        v = st.theta[held]
+        num, den = float(v @ sand[np.ix_(held, held)] @ v), float(v @ noise[np.ix_(held, held)] @ v)
+        return num / den if den > 0 and math.isfinite(num / den) else 1.0
 
     def over_noise(self, model: Fitted) -> tuple[float, float]:
         m = model.metrics
