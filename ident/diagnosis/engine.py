@@ -22,7 +22,11 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
 6. **Converge** the accepted model (``plugin.converge``), iterate; then **backward elimination**: a named effect
    whose removal does not worsen the held-back prediction significantly only stood in for later ones, and goes.
 7. **Say how sure**: a named effect is tentative when the final model leaves the sensor's residual above
-   ``CONFIDENT_OVER_NOISE`` times its noise (a shape the library does not have, or an effect outside it), when a
+   ``CONFIDENT_OVER_NOISE`` times its noise (a shape the library does not have, or an effect outside it), when the
+   final model, though at the noise, does not hold along the log (``_check_constancy``: refitted on each half of the
+   training data alone, its drive and effect parameters differ by a Wald test at ``DM_LEVEL``; an effect the library
+   has keeps its size, while a stand-in for one it lacks, e.g. asymmetric friction for a friction ripple periodic in
+   the motor angle, follows what each half visits), when a
    candidate was not ruled out, when the model it extends already explained the log down to the noise (it may stand
    in for a named effect's shape the library lacks: ``_doubts``), or when its refitted runner-up predicts the
    held-back data as well (the acceptance rule's Diebold-Mariano test cannot tell the two apart: e.g. load-side
@@ -141,6 +145,18 @@ def _refit_task(args: tuple) -> CandidateFit:
     return out
 
 
+def _half_task(args: tuple) -> Fitted | None:
+    """One half of the constancy check (``plugin.half``); its failure leaves the check undone, not the diagnosis."""
+    plugin, model, which, budget = args
+    try:
+        out = plugin.half(model, which, budget)
+    except Exception:  # noqa: BLE001 - a check, not a result
+        return None
+    if out is not None:
+        out.state.sim = None
+    return out
+
+
 def _without_task(args: tuple) -> Fitted:
     plugin, model, name, budget = args
     return plugin.without(model, name, budget)
@@ -160,6 +176,7 @@ class _Search:
         self.notes: list[str] = []
         self.unresolved: dict[str, dict[str, Any]] = {}   # candidates not fitted and not ruled out since
         self.size_checks: dict[str, Checks] = {}   # named effect -> its size's last check (``sizes``)
+        self.constancy: dict[str, Any] = {}   # the final model's constancy check (``_check_constancy``)
 
     @property
     def shared(self) -> Any:
@@ -188,7 +205,26 @@ class _Search:
                 current = self.models[-1]
                 continue
             current = nxt
-        return self._settle(self._backward(current))
+        final = self._settle(self._backward(current))
+        self._check_constancy(final)
+        return final
+
+    def _check_constancy(self, final: Fitted) -> None:
+        """Step 7's constancy check: a final model at the noise, refitted on each half of the training data alone
+        (``plugin.half``, on the workers); the Wald test of equal parameters (``plugin.constancy``). Only such a
+        model needs it: above the noise every name is tentative already."""
+        over = self.plugin.over_noise(final)
+        if not self.named or over is None or max(over) > CONFIDENT_OVER_NOISE:
+            return
+        self.say("constancy check: refitting the final model on each half of the training data ...")
+        halves = self.pool.map(_half_task, [(self.shared, final, w, self.budget) for w in (0, 1)],
+                               desc="constancy check")
+        if any(h is None for h in halves):
+            self.constancy = {"checked": False, "why": "a half could not be refitted within its budget"}
+            return
+        wald, df = self.plugin.constancy(*halves)
+        self.constancy = {"checked": True, "wald": wald, "df": df, "p_value": float(stats.chi2.sf(wald, df)),
+                          "level": DM_LEVEL}
 
     def _settle(self, model: Fitted) -> Fitted:
         """The size search of every named effect (``sizes``), in the order named; when a later effect's search
@@ -481,16 +517,22 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
     if search.not_ruled_out:
         reasons.append("candidate(s) " + ", ".join(sorted({c["candidate"] for c in search.not_ruled_out}))
                        + " could not be fitted and are not ruled out")
+    c = search.constancy
+    if c.get("checked") and not c["p_value"] >= c["level"]:
+        reasons.append(f"the final model's parameters differ between the two halves of the training data (Wald "
+                       f"{c['wald']:.3g} on {c['df']} degrees of freedom, p = {c['p_value']:.2g}, below "
+                       f"{c['level']:g}): what it names does not hold along the log, and may stand in for a shape "
+                       "the library lacks or an effect outside it")
     for e in named:
         own = reasons + search.doubts.get(e.name, [])
         e.tentative, e.why_tentative = bool(own), "; ".join(own)
     table = plugin.regimes(final)
     unexplained = plugin.unexplained(final, table)
-    return named, unexplained, table, _summary(named, unexplained, over, search.not_ruled_out)
+    return named, unexplained, table, _summary(named, unexplained, over, search.not_ruled_out, c)
 
 
 def _summary(named: list[NamedEffect], unexplained: list[dict[str, Any]], over: tuple[float, float] | None,
-             not_ruled_out: list[dict[str, Any]]) -> list[str]:
+             not_ruled_out: list[dict[str, Any]], constancy: dict[str, Any]) -> list[str]:
     """The diagnosis in sentences, every one made from the numbers."""
     out = []
     for e in named:
@@ -499,6 +541,15 @@ def _summary(named: list[NamedEffect], unexplained: list[dict[str, Any]], over: 
                    f"[{e.ci95[0]:.4g}, {e.ci95[1]:.4g}]" + (f" ({e.size_note()})" if e.size_check else ""))
     if not named:
         out.append("no library effect improves the held-back prediction significantly")
+    if constancy.get("checked"):
+        test = (f"(Wald {constancy['wald']:.3g} on {constancy['df']} degrees of freedom, p = "
+                f"{constancy['p_value']:.2g})")
+        out.append(f"the final model's parameters hold between the two halves of the training data {test}"
+                   if constancy["p_value"] >= constancy["level"] else
+                   f"a shape the library does not have, or an effect outside it, may remain: the final model's "
+                   f"parameters differ between the two halves of the training data {test}")
+    elif constancy:
+        out.append(f"whether the final model's parameters hold along the log was not checked: {constancy['why']}")
     if over is None:
         out.append("the sensor's noise level is not known for this model: whether the final model explains the "
                    "log down to its noise cannot be told")
@@ -559,7 +610,7 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
         named, unexplained, table, summary = _conclude(search, final)
     diag = Diagnosis(plugin.kind, search.steps, named, unexplained, table, notes=search.notes + plugin.notes(),
                      not_ruled_out=search.not_ruled_out, derivations=plugin.derivations(), summary=summary,
-                     budget=budget)
+                     budget=budget, constancy=search.constancy)
     for line in summary:
         say(line)
     if out_dir is not None:

@@ -510,21 +510,25 @@ def information_inverse(info: np.ndarray) -> np.ndarray:
     return ((vec / lam) @ vec.T) / np.outer(d, d)
 
 
-def covariances(problem: OutputError, theta: np.ndarray, block: int, scaled: bool = True
+def covariances(problem: OutputError, theta: np.ndarray, block: int, scaled: bool = True, skip: int = 0
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(noise-only, sandwich, Jacobian) at ``theta``. Noise-only: (J^T J)^-1, times the residual variance when
     ``scaled`` (the rows' noise level then comes from the residual itself; ``identify`` passes False: its rows are
     already in units of its noise estimate, so (J^T J)^-1 is the Cramer-Rao bound). Sandwich: blocks of ``block``
-    samples, so that correlated misfit inside a block (a model that does not fit) is accounted for."""
+    samples, so that correlated misfit inside a block (a model that does not fit) is accounted for. ``skip``: the
+    first samples of each sensor's rows are not data (a fit of a later part of the log)."""
     J = problem.jacobian(theta)
     r = problem.residuals(theta)
+    half = problem.y_l.size
+    if skip:
+        rows = np.r_[skip:half, half + skip:J.shape[0]]
+        J, r, half = J[rows], r[rows], half - skip
     info = J.T @ J
     inv = information_inverse(info)
     m, n = J.shape
     dof = max(m - n, 1)
     noise_only = inv * (float(r @ r) / dof) if scaled else inv
     meat = np.zeros((n, n))
-    half = problem.y_l.size
     for part in (slice(0, half), slice(half, m)):
         Jp, rp = J[part], r[part]
         for s in range(0, Jp.shape[0], block):

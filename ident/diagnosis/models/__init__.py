@@ -141,6 +141,17 @@ class ModelPlugin(ABC):
         (``ident.diagnosis.sizes``). Default 1: a plug-in without ``probe_size`` never searches."""
         return 1.0
 
+    def half(self, model: Fitted, which: int, budget: float | None) -> Fitted | None:
+        """``model`` refitted on the first (``which`` 0) or the second half of its training data alone, every
+        unknown free (the engine's constancy check); ``budget`` as ``refit``. None: the plug-in has no such refit,
+        or it ran out of budget."""
+        return None
+
+    def constancy(self, first: Fitted, second: Fitted) -> tuple[float, int]:
+        """The Wald statistic of "the two halves' models (``half``) have the same parameters" and its degrees of
+        freedom."""
+        raise NotImplementedError(f"{type(self).__name__} has no constancy check")
+
     def twin_of(self, model: Fitted, name: str) -> tuple[str, str, str] | None:
         """The rival effect that the model's own physics makes a near twin of effect ``name`` in ``model`` (e.g.
         viscous friction on the other side of the gear, its size carried over by the ratio): (rival, the size

@@ -54,6 +54,7 @@ class ModelProblem(OutputError):
         self.fixed = dict(fixed or {})
         self.budget = budget
         self.pinned: dict[int, float] = {}  # unknowns held at a value (``TwoInertiaPlugin.probe_size``)
+        self.skip = 0   # the first training samples left out of the residual (simulated: they carry the state)
         self.best: tuple[float, np.ndarray] | None = None   # the lowest cost simulated and its point
         self.since_best = 0
 
@@ -61,6 +62,11 @@ class ModelProblem(OutputError):
         """``OutputError.residuals``, keeping the best point simulated and how long ago it was found."""
         before = self.evaluations
         r = super().residuals(theta)
+        if self.skip:
+            n = self.y_l.size
+            r = r.copy()
+            r[:self.skip] = 0.0
+            r[n:n + self.skip] = 0.0
         if self.evaluations > before:  # a new simulation (not a cached one)
             cost = float(r @ r)
             if self.best is None or cost < self.best[0] * (1.0 - STALL_TOL):

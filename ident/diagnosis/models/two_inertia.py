@@ -414,6 +414,39 @@ class TwoInertiaPlugin(ModelPlugin):
         head[free] += cov[np.ix_(free, held)] @ np.linalg.lstsq(cov[np.ix_(held, held)], delta, rcond=None)[0]
         return self._fit_from(model, model.effects, head, budget, pin=held)
 
+    def half(self, model: Fitted, which: int, budget: float | None) -> Fitted | None:
+        """``model`` refitted on the first (``which`` 0) or the second half of the training part alone, every unknown
+        free from its optimum, within ``budget``; its covariance from that half alone. The second half is simulated
+        from the log's start (the first half carries the state) but only its own samples are data."""
+        st = model.state
+        if st.rigid or not model.effects or model.effects == (FLEXIBILITY,):
+            return None
+        h = self.stop // 2
+        problem = st.problem(self.full, model.effects, self.stop if which else h, self.sigma, central=False,
+                             budget=EvaluationBudget(None if budget is None else budget * self.stop))
+        problem.skip = h if which else 0
+        try:
+            lo, hi = problem.bounds()
+            theta = _ipopt_or_best(problem, np.clip(st.theta, lo, hi), lo, hi)
+            problem.budget, problem.central = None, True
+            covs = covariances(problem, theta, max(10, int(self.full.meta.sample_rate_hz / 50)), skip=problem.skip)
+        except BudgetExceeded:
+            return None
+        finally:
+            problem.close()
+        out = self.evaluate(model.effects, theta, st.base, st.scales, sens=st.sens)
+        out.state.covs = covs[:2]
+        return out
+
+    def constancy(self, first: Fitted, second: Fitted) -> tuple[float, int]:
+        """The Wald statistic of "both halves have the same K*, J_l*, f_l* and effect coordinates" and its degrees
+        of freedom (the initial deflection is left out: it belongs to the log's start, which the second half does
+        not see). The halves' data are independent, so the difference's covariance is the sum of theirs."""
+        keep = [0, 1, 2, *range(4, first.state.theta.size)]
+        d = first.state.theta[keep] - second.state.theta[keep]
+        V = (self._cov(first) + self._cov(second))[np.ix_(keep, keep)]
+        return float(d @ np.linalg.pinv(V, rcond=1e-12) @ d), len(keep)
+
     def twin_of(self, model: Fitted, name: str) -> tuple[str, str, str] | None:
         """Viscous friction on the other side of the gear (``TWINS``): a load-side coefficient b_l acts on the motor
         as r^2 b_l, so the two sides differ only through the spring's deflection, by about b d' / K in the load
