@@ -358,8 +358,8 @@ def test_a_final_model_that_does_not_hold_along_the_log_names_nothing_confidentl
     between the halves: named tentatively, and the report says a shape may remain. With exponent 1 (the library's
     shape) the check passes and the name is confident. Measured on the independent generator's logs: flagged a
     friction ripple stood in for by asymmetric friction and Stribeck (p = 0.0025), a three-slope hardening with a
-    false asymmetric friction (6e-7) and a Maxwell-slip hysteresis with a false hardening (5e-16); passed 11 logs of
-    library shapes (p = 0.085-0.96)."""
+    false asymmetric friction (6e-7) and a Maxwell-slip hysteresis with a false hardening (5e-16); passed 9 logs of
+    library shapes (p = 0.085-0.96) and two other Stribeck decays (0.37, 0.40)."""
     out = {}
     for seed in (5103, 5101):
         log, truth = load(Case("single", seed, "hysteresis", "medium", "default", "dahl"), 10.0, 5000.0)
