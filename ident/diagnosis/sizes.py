@@ -123,7 +123,6 @@ def residual_variance(model: Fitted) -> float:
     return model.train_cost / max(model.n_train - model.k, 1)
 
 
-
 def at_noise(model: Fitted, min_gain: float) -> bool:
     """True when no move could lower ``model``'s training cost ``min_gain`` times (> 1): the cost, in noise
     variances, is already below ``min_gain`` times its expectation at the truth (n - k). Such a refit is not searched.

@@ -405,7 +405,7 @@ class TwoInertiaPlugin(ModelPlugin):
         st = model.state
         if st.rigid or name == FLEXIBILITY:
             return None
-        held = [4 + i for i, c in enumerate(_layout(model)) if c.effect == name and not c.log]
+        held = _size_indices(model, name)
         free = [i for i in range(st.theta.size) if i not in held]
         delta = st.theta[held] * (factor - 1.0)
         cov = self._cov(model)
@@ -429,7 +429,7 @@ class TwoInertiaPlugin(ModelPlugin):
             lo, hi = problem.bounds()
             theta = _ipopt_or_best(problem, np.clip(st.theta, lo, hi), lo, hi)
             problem.budget, problem.central = None, True
-            covs = covariances(problem, theta, max(10, int(self.full.meta.sample_rate_hz / 50)), skip=problem.skip)
+            covs = covariances(problem, theta, self._block, skip=problem.skip)
         except BudgetExceeded:
             return None
         finally:
@@ -488,18 +488,22 @@ class TwoInertiaPlugin(ModelPlugin):
         if st.covs is None:
             problem = st.problem(self.full, model.effects, self.stop, self.sigma)
             try:
-                block = max(10, int(self.full.meta.sample_rate_hz / 50))
-                noise, sand, _ = covariances(problem, st.theta, block)
+                noise, sand, _ = covariances(problem, st.theta, self._block)
             finally:
                 problem.close()
             st.covs = (noise, sand)
         return st.covs
 
+    @property
+    def _block(self) -> int:
+        """The sandwich covariance's block: 20 ms of samples (at least 10)."""
+        return max(10, int(self.full.meta.sample_rate_hz / 50))
+
     def size_inflation(self, model: Fitted, name: str) -> float:
         """The sandwich variance of the effect's size over its noise-only variance, along the direction its size
         search moves (its linear coordinates scaled together)."""
         st = model.state
-        held = [4 + i for i, c in enumerate(_layout(model)) if c.effect == name and not c.log]
+        held = _size_indices(model, name)
         if st.rigid or not held:
             return 1.0
         noise, sand = self._covs(model)
@@ -581,6 +585,11 @@ def _carried(model: Fitted, name: str) -> tuple[str, float] | None:
         return None
     rival, own_param, _, power = TWINS[name]
     return rival, float(getattr(model.state.params, own_param)) * model.state.params.r ** power
+
+
+def _size_indices(model: Fitted, name: str) -> list[int]:
+    """Indices in the unknowns of effect ``name``'s linear coordinates: its size, which ``probe_size`` holds."""
+    return [4 + i for i, c in enumerate(_layout(model)) if c.effect == name and not c.log]
 
 
 def _fmu_effects(effects: tuple[str, ...]) -> tuple[str, ...]:
