@@ -306,6 +306,49 @@ def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -
     assert failed.model is None and failed.size_probes == 0
 
 
+def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None:
+    """The loop's last size search (``_Search._settle``) probes every named size on a final model at the noise, and
+    none on one above ``CONFIDENT_OVER_NOISE`` times it (on the training or the held-back data): its names are
+    tentative for that reason whatever the search finds, and the report says the search was not run. On an
+    actuator-lag log (outside the library) it took 210 s of 462 s for three tentative names. When no search moves
+    the model each size is searched once (the earlier ones were searched again, though nothing had moved)."""
+    from ident.diagnosis import CONFIDENT_OVER_NOISE
+    from ident.diagnosis.engine import _Say, _Search
+    from ident.diagnosis.result import NamedEffect
+
+    class Pool:
+        def __init__(self) -> None:
+            self.probes = 0
+
+        def share(self, plugin: object) -> object:
+            return plugin
+
+        def map(self, fn: object, tasks: list[tuple], desc: str = "") -> list[None]:
+            self.probes += len(tasks)
+            return [None] * len(tasks)   # probes that failed: the search ends at its first check
+
+    class Plugin:
+        @staticmethod
+        def over_noise(model: Fitted) -> tuple[float, float]:
+            return model.metrics["over"]
+
+        @staticmethod
+        def size_inflation(model: Fitted, name: str) -> float:
+            return 1.0
+
+    losses = np.ones(100)
+    for over, probed in (((1.0, 0.99), True), ((1.0, CONFIDENT_OVER_NOISE * 1.01), False),
+                         ((CONFIDENT_OVER_NOISE * 1.01, 1.0), False)):
+        pool = Pool()
+        search = _Search(Plugin(), pool, None, 3, _Say(False))
+        search.named = [NamedEffect(n, math.nan, (math.nan, math.nan), "", "", None, None) for n in ("stribeck", "hysteresis")]
+        model = Fitted(("stribeck", "hysteresis"), 100.0, 100.0, losses, 100, 8, {"over": over})
+        assert search._settle(model) is model
+        assert (pool.probes == 4) == probed and (pool.probes == 0) == (not probed), (over, pool.probes)
+        assert any("size search: not run" in n for n in search.notes) == (not probed)
+        assert set(search.size_checks) == ({"stribeck", "hysteresis"} if probed else set())
+
+
 def test_the_size_search_counts_chance_with_the_residuals_correlation() -> None:
     """``sizes._better``: a probe fits better only when its training cost falls by more than one residual variance
     times the size's inflation (``size_inflation``: its sandwich over its noise-only variance). On the stalled profile
