@@ -33,9 +33,10 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    viscous damping and a small hysteresis both explain a ringing decay), or when the log does not pin its size
    (``sizes``: each named size is searched along its own axis with the rest refitted, and checked
    ``SIZE_PROBE`` either side; a check that fits as well makes the name tentative, one that fits worse widens the
-   interval to its secant; not searched when the final model is above the noise: its names are tentative already), or when its size search moved the model (the free refits it was chosen by had
-   stalled), or when its twin (``plugin.twin_of``: viscous friction on the other side of the gear) fits the training
-   data within ``SEPARABLE`` noise variances of it (``_twin_doubt``); what is left is localised by regime (*unexplained*), never named.
+   interval to its secant; not searched when the final model is above the noise: its names are tentative already),
+   or when its size search moved the model (the free refits it was chosen by had stalled), or when its twin
+   (``plugin.twin_of``: viscous friction on the other side of the gear) fits the training data within ``SEPARABLE``
+   noise variances of it (``_twin_doubt``); what is left is localised by regime (*unexplained*), never named.
 
 Ctrl-C stops a diagnosis at once: worker processes are killed, nothing is written.
 """
@@ -71,6 +72,15 @@ CONVERGE_BUDGETS = 2.0
 #: log: the cost difference is the non-centrality of the likelihood-ratio test between them, and this is the one a
 #: one-sided test at the acceptance rule's level (``DM_LEVEL``) detects with 95 % power, (z_0.99 + z_0.95)^2 = 15.8
 SEPARABLE = float((stats.norm.isf(DM_LEVEL) + stats.norm.isf(0.05)) ** 2)
+
+
+def _above_level(over: tuple[float, float] | None) -> bool:
+    """The first reason a name is tentative (step 7): the model leaves the sensor's residual above
+    ``CONFIDENT_OVER_NOISE`` times its noise on the training or the held-back data (``plugin.over_noise``), so it does
+    not reproduce its log. False when the plug-in does not know the noise (``over`` None). The one place the level
+    is applied: the constancy check and the final size search run only below it, and the summary says which side a
+    model is on."""
+    return over is not None and max(over) > CONFIDENT_OVER_NOISE
 
 
 @dataclass
@@ -214,7 +224,7 @@ class _Search:
         (``plugin.half``, on the workers); the Wald test of equal parameters (``plugin.constancy``). Only such a
         model needs it: above the noise every name is tentative already."""
         over = self.plugin.over_noise(final)
-        if not self.named or over is None or max(over) > CONFIDENT_OVER_NOISE:
+        if not self.named or over is None or _above_level(over):
             return
         self.say("constancy check: refitting the final model on each half of the training data ...")
         halves = self.pool.map(_half_task, [(self.shared, final, w, self.budget) for w in (0, 1)],
@@ -240,7 +250,7 @@ class _Search:
         if not self.named:
             return model
         over = self.plugin.over_noise(model)
-        if over is not None and max(over) > CONFIDENT_OVER_NOISE:
+        if _above_level(over):
             self.notes.append(f"size search: not run, the final model leaves {max(over):.4g}x the sensor noise "
                               f"(above {CONFIDENT_OVER_NOISE:g}x) and every name is tentative; the intervals are "
                               "the fit's own")
@@ -461,7 +471,7 @@ def _doubts(plugin: ModelPlugin, current: Fitted, winner: CandidateFit, fits: li
             out.append(f"its runner-up {runner} predicts the held-back data as well (Diebold-Mariano p = {p:.2g}, "
                        f"not below {DM_LEVEL:g}): this log cannot tell {name} from {runner}")
     over = plugin.over_noise(current)
-    if current.effects and over is not None and max(over) <= CONFIDENT_OVER_NOISE:
+    if current.effects and over is not None and not _above_level(over):
         out.append(f"the model before it ({', '.join(current.effects)}) already explained the log down to "
                    f"{over[0]:.4g}x / {over[1]:.4g}x the sensor noise (training / held back; confident at "
                    f"{CONFIDENT_OVER_NOISE:g}x): what {name} removes (a {gain:.4g}x lower held-back cost) is no more "
@@ -524,7 +534,7 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
             widen(named[-1], final, search.size_checks[e.name], search.doubts.setdefault(e.name, []))
     over = plugin.over_noise(final)
     reasons = []
-    if over is not None and max(over) > CONFIDENT_OVER_NOISE:
+    if _above_level(over):
         reasons.append(f"the final model leaves the residual {over[0]:.3g}x (training) and {over[1]:.3g}x "
                        f"(held back) the sensor noise, above {CONFIDENT_OVER_NOISE:g}x: it does not reproduce "
                        "this log")
@@ -567,7 +577,7 @@ def _summary(named: list[NamedEffect], unexplained: list[dict[str, Any]], over: 
     if over is None:
         out.append("the sensor's noise level is not known for this model: whether the final model explains the "
                    "log down to its noise cannot be told")
-    elif max(over) <= CONFIDENT_OVER_NOISE:
+    elif not _above_level(over):
         out.append(f"the final model explains the log down to the sensor noise ({over[0]:.4g}x training, "
                    f"{over[1]:.4g}x held back)")
     elif named:
