@@ -306,6 +306,28 @@ def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -
     assert failed.model is None and failed.size_probes == 0
 
 
+def test_the_confidence_level_is_the_noise_scatter_of_each_part_under_a_ceiling() -> None:
+    """A model reproduces its log when its residual over the noise is within chance (``CONFIDENT_ALPHA``) of 1 on
+    each part (``TwoInertiaPlugin.confident_levels``): the level falls with the part's length and the noise estimate's
+    (the training part), and never rises above ``CONFIDENT_OVER_NOISE``. On a 3 s log at 5 kHz the training part
+    (10,500 samples) is at 1.045x, the held-back part (4,500) would be above 1.05x and is held at it; a 10 s log's
+    parts are at 1.024x and 1.028x, where a new drive's model with a wrong name ended at 1.041x."""
+    from ident.diagnosis import CONFIDENT_ALPHA, CONFIDENT_OVER_NOISE, above_level
+    from ident.diagnosis.models.two_inertia import TwoInertiaPlugin
+    from ident.fitting.noise import at_noise_level
+
+    log, _ = load(Case("single", 5102, "viscous_load", "medium", "default"), **SHORT)
+    plugin = TwoInertiaPlugin(log)
+    train, held = plugin.confident_levels()
+    assert train == pytest.approx(at_noise_level(plugin.stop, plugin.stop, CONFIDENT_ALPHA))
+    assert 1.03 < train < CONFIDENT_OVER_NOISE == held < at_noise_level(log.n - plugin.stop, plugin.stop,
+                                                                         CONFIDENT_ALPHA)
+    assert above_level((train * 1.001, 1.0), (train, held)) and above_level((1.0, held * 1.001), (train, held))
+    assert not above_level((train * 0.999, held * 0.999), (train, held)) and not above_level(None, (train, held))
+    ten_s = (at_noise_level(35000, 35000, CONFIDENT_ALPHA), at_noise_level(15000, 35000, CONFIDENT_ALPHA))
+    assert above_level((1.041, 1.0), ten_s) and not above_level((1.041, 1.0), (CONFIDENT_OVER_NOISE,) * 2)
+
+
 def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None:
     """The loop's last size search (``_Search._settle``) probes every named size on a final model at the noise, and
     none on one above ``CONFIDENT_OVER_NOISE`` times it (on the training or the held-back data): its names are
@@ -331,6 +353,10 @@ def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None
         @staticmethod
         def over_noise(model: Fitted) -> tuple[float, float]:
             return model.metrics["over"]
+
+        @staticmethod
+        def confident_levels() -> tuple[float, float]:
+            return CONFIDENT_OVER_NOISE, CONFIDENT_OVER_NOISE
 
         @staticmethod
         def size_inflation(model: Fitted, name: str) -> float:
@@ -604,8 +630,8 @@ def test_a_candidates_refit_starts_no_worse_than_the_model_it_extends() -> None:
 
 
 def test_an_effect_accepted_after_the_model_reached_the_noise_is_tentative() -> None:
-    """An effect accepted at a model whose named effects already explain the log down to the confidence level
-    (``CONFIDENT_OVER_NOISE``) is tentative, with the numbers that made it so: it may stand in for a named effect's
+    """An effect accepted at a model whose named effects already explain the log down to the fixed ceiling of the
+    confidence level (``CONFIDENT_OVER_NOISE``, not the model's own chance level) is tentative, with the numbers that made it so: it may stand in for a named effect's
     shape the library lacks (two-effect logs of the independent generator named kinematic error after a Maxwell-slip
     hysteresis and a three-slope hardening left 1.00x / 1.015x the noise). Not so for the first effect (there is no
     named shape to stand in for), nor above the level; a runner-up the Diebold-Mariano test cannot tell apart is

@@ -21,22 +21,23 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    the held-back data significantly worse). Its margin: the runner-up's held-back cost over its own.
 6. **Converge** the accepted model (``plugin.converge``), iterate; then **backward elimination**: a named effect
    whose removal does not worsen the held-back prediction significantly only stood in for later ones, and goes.
-7. **Say how sure**: a named effect is tentative when the final model leaves the sensor's residual above
-   ``CONFIDENT_OVER_NOISE`` times its noise (a shape the library does not have, or an effect outside it), when the
-   final model, though at the noise, does not hold along the log (``_check_constancy``: refitted on each half of the
-   training data alone, its drive and effect parameters differ by a Wald test at ``DM_LEVEL``; an effect the library
-   has keeps its size, while a stand-in for one it lacks, e.g. asymmetric friction for a friction ripple periodic in
-   the motor angle, follows what each half visits), when a
-   candidate was not ruled out, when the model it extends already explained the log down to the noise (it may stand
-   in for a named effect's shape the library lacks: ``_doubts``), or when its refitted runner-up predicts the
-   held-back data as well (the acceptance rule's Diebold-Mariano test cannot tell the two apart: e.g. load-side
-   viscous damping and a small hysteresis both explain a ringing decay), or when the log does not pin its size
-   (``sizes``: each named size is searched along its own axis with the rest refitted, and checked
-   ``SIZE_PROBE`` either side; a check that fits as well makes the name tentative, one that fits worse widens the
-   interval to its secant; not searched when the final model is above the noise: its names are tentative already),
-   or when its size search moved the model (the free refits it was chosen by had stalled), or when its twin
-   (``plugin.twin_of``: viscous friction on the other side of the gear) fits the training data within ``SEPARABLE``
-   noise variances of it (``_twin_doubt``); what is left is localised by regime (*unexplained*), never named.
+7. **Say how sure**: a named effect is tentative when the final model leaves the sensor's residual above its level
+   times its noise (``plugin.confident_levels``: what a model reproducing its log exceeds by chance with probability
+   ``CONFIDENT_ALPHA``, at most ``CONFIDENT_OVER_NOISE``; a shape the library does not have, or an effect outside it),
+   when the final model, though at the noise, does not hold along the log (``_check_constancy``: refitted on each half
+   of the training data alone, its drive and effect parameters differ by a Wald test at ``DM_LEVEL``; an effect the
+   library has keeps its size, while a stand-in for one it lacks, e.g. asymmetric friction for a friction ripple
+   periodic in the motor angle, follows what each half visits), when a candidate was not ruled out, when the model it
+   extends already explained the log down to the noise (it may stand in for a named effect's shape the library lacks:
+   ``_doubts``), or when its refitted runner-up predicts the held-back data as well (the acceptance rule's
+   Diebold-Mariano test cannot tell the two apart: e.g. load-side viscous damping and a small hysteresis both explain
+   a ringing decay), or when the log does not pin its size (``sizes``: each named size is searched along its own axis
+   with the rest refitted, and checked ``SIZE_PROBE`` either side; a check that fits as well makes the name tentative,
+   one that fits worse widens the interval to its secant; not searched when the final model is above the noise: its
+   names are tentative already), or when its size search moved the model (the free refits it was chosen by had
+   stalled), or when its twin (``plugin.twin_of``: viscous friction on the other side of the gear) fits the training
+   data within ``SEPARABLE`` noise variances of it (``_twin_doubt``); what is left is localised by regime
+   (*unexplained*), never named.
 
 Ctrl-C stops a diagnosis at once: worker processes are killed, nothing is written.
 """
@@ -53,7 +54,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from . import CONFIDENT_OVER_NOISE, DEFAULT_BUDGET
+from . import CONFIDENT_OVER_NOISE, DEFAULT_BUDGET, above_level, levels_text
 from ..fitting.logs import DriveLog, LogError
 from ..protocols.batch import WorkerPool
 from .models import CandidateFit, Fitted, ModelPlugin
@@ -72,15 +73,6 @@ CONVERGE_BUDGETS = 2.0
 #: log: the cost difference is the non-centrality of the likelihood-ratio test between them, and this is the one a
 #: one-sided test at the acceptance rule's level (``DM_LEVEL``) detects with 95 % power, (z_0.99 + z_0.95)^2 = 15.8
 SEPARABLE = float((stats.norm.isf(DM_LEVEL) + stats.norm.isf(0.05)) ** 2)
-
-
-def _above_level(over: tuple[float, float] | None) -> bool:
-    """The first reason a name is tentative (step 7): the model leaves the sensor's residual above
-    ``CONFIDENT_OVER_NOISE`` times its noise on the training or the held-back data (``plugin.over_noise``), so it does
-    not reproduce its log. False when the plug-in does not know the noise (``over`` None). The one place the level
-    is applied: the constancy check and the final size search run only below it, and the summary says which side a
-    model is on."""
-    return over is not None and max(over) > CONFIDENT_OVER_NOISE
 
 
 @dataclass
@@ -224,7 +216,7 @@ class _Search:
         (``plugin.half``, on the workers); the Wald test of equal parameters (``plugin.constancy``). Only such a
         model needs it: above the noise every name is tentative already."""
         over = self.plugin.over_noise(final)
-        if not self.named or over is None or _above_level(over):
+        if not self.named or over is None or above_level(over, self.plugin.confident_levels()):
             return
         self.say("constancy check: refitting the final model on each half of the training data ...")
         halves = self.pool.map(_half_task, [(self.shared, final, w, self.budget) for w in (0, 1)],
@@ -240,7 +232,7 @@ class _Search:
         """The size search of every named effect (``sizes``), in the order named; when a later effect's search
         moved the model, the earlier ones are searched (checked) again from where it ended.
 
-        Not on a model that leaves more than ``CONFIDENT_OVER_NOISE`` times the sensor noise: every name is then
+        Not on a model that leaves the sensor noise above its level (``plugin.confident_levels``): every name is then
         tentative for that reason (``_conclude``), so what the search can add (a doubt, a wider interval) changes no
         verdict, and the intervals stay the fit's own (the larger of the sandwich and noise-only variances, which
         grow with a correlated misfit). Only the magnitudes could still move, and they are not a shape's size when
@@ -249,11 +241,11 @@ class _Search:
         noise): the search of three tentative names took 210 s of 462 s and moved the training cost 1.3 %."""
         if not self.named:
             return model
-        over = self.plugin.over_noise(model)
-        if _above_level(over):
-            self.notes.append(f"size search: not run, the final model leaves {max(over):.4g}x the sensor noise "
-                              f"(above {CONFIDENT_OVER_NOISE:g}x) and every name is tentative; the intervals are "
-                              "the fit's own")
+        over, levels = self.plugin.over_noise(model), self.plugin.confident_levels()
+        if above_level(over, levels):
+            self.notes.append(f"size search: not run, the final model leaves {over[0]:.4g}x / {over[1]:.4g}x the "
+                              f"sensor noise (above its level {levels_text(levels)}) and every name is tentative; "
+                              "the intervals are the fit's own")
             return model
         self.say(f"searching the sizes of {', '.join(e.name for e in self.named)} ({SIZE_PROBE:.0%} either side "
                  "first) ...")
@@ -448,17 +440,19 @@ def _runner_up(winner: CandidateFit, fits: list[CandidateFit], screen: pd.DataFr
 
 def _doubts(plugin: ModelPlugin, current: Fitted, winner: CandidateFit, fits: list[CandidateFit],
             runner: str | None, gain: float) -> list[str]:
-    """Why the log cannot pin an accepted effect, though the acceptance rule holds: (1) its refitted runner-up
-    predicts the held-back data as well (the rule's own Diebold-Mariano test cannot tell the two apart: e.g.
-    load-side viscous damping and a small hysteresis both explain a ringing decay); (2) the model it extends, with
-    effects already named, explained the log down to ``CONFIDENT_OVER_NOISE`` times the sensor noise: what is left
-    there is no larger than the misfit of a named effect whose real shape is not the library's, and a further
-    effect that removes it may stand in for that shape (measured on two-effect logs of the independent generator:
-    a Maxwell-slip hysteresis with a three-slope hardening left 1.00x / 1.015x the noise, and kinematic error was
-    then accepted with a 1.036x gain; a Dahl hysteresis left 1.005x / 1.031x and viscous load damping followed);
-    (3) a rival's size search used up its rounds still moving, so it may fit better than the winner (measured: motor-
-    and load-side viscous friction on torque-step logs, both searches unsettled, the final model at 0.98x the noise
-    with either; the one 1.8 % ahead on the held-back data was named, confidently, and was the wrong side)."""
+    """Why the log cannot pin an accepted effect, though the acceptance rule holds: (1) its refitted runner-up predicts
+    the held-back data as well (the rule's own Diebold-Mariano test cannot tell the two apart: e.g. load-side viscous
+    damping and a small hysteresis both explain a ringing decay); (2) the model it extends, with effects already named,
+    explained the log down to ``CONFIDENT_OVER_NOISE`` times the sensor noise (the fixed ceiling, not the model's own
+    chance level: a misfit the chance level calls significant may still be no more than a named shape's mismatch, and
+    this doubt is the safe side): what is left there is no larger than the misfit of a named effect whose real shape is
+    not the library's, and a further effect that removes it may stand in for that shape (measured on two-effect logs of
+    the independent generator: a Maxwell-slip hysteresis with a three-slope hardening left 1.00x / 1.015x the noise,
+    and kinematic error was then accepted with a 1.036x gain; a Dahl hysteresis left 1.005x / 1.031x and viscous load
+    damping followed); (3) a rival's size search used up its rounds still moving, so it may fit better than the winner
+    (measured: motor- and load-side viscous friction on torque-step logs, both searches unsettled, the final model at
+    0.98x the noise with either; the one 1.8 % ahead on the held-back data was named, confidently, and was the wrong
+    side)."""
     name, out = winner.name, []
     restless = sorted(f.name for f in fits if f is not winner and f.model is not None and f.size_unsettled)
     if restless:
@@ -471,9 +465,9 @@ def _doubts(plugin: ModelPlugin, current: Fitted, winner: CandidateFit, fits: li
             out.append(f"its runner-up {runner} predicts the held-back data as well (Diebold-Mariano p = {p:.2g}, "
                        f"not below {DM_LEVEL:g}): this log cannot tell {name} from {runner}")
     over = plugin.over_noise(current)
-    if current.effects and over is not None and not _above_level(over):
+    if current.effects and over is not None and not above_level(over, (CONFIDENT_OVER_NOISE,) * 2):
         out.append(f"the model before it ({', '.join(current.effects)}) already explained the log down to "
-                   f"{over[0]:.4g}x / {over[1]:.4g}x the sensor noise (training / held back; confident at "
+                   f"{over[0]:.4g}x / {over[1]:.4g}x the sensor noise (training / held back; within "
                    f"{CONFIDENT_OVER_NOISE:g}x): what {name} removes (a {gain:.4g}x lower held-back cost) is no more "
                    f"than a named effect whose real shape is not the library's would leave, and {name} may stand "
                    "in for that shape")
@@ -532,12 +526,12 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
                                  mag.params))
         if e.name in search.size_checks:
             widen(named[-1], final, search.size_checks[e.name], search.doubts.setdefault(e.name, []))
-    over = plugin.over_noise(final)
+    over, levels = plugin.over_noise(final), plugin.confident_levels()
     reasons = []
-    if _above_level(over):
-        reasons.append(f"the final model leaves the residual {over[0]:.3g}x (training) and {over[1]:.3g}x "
-                       f"(held back) the sensor noise, above {CONFIDENT_OVER_NOISE:g}x: it does not reproduce "
-                       "this log")
+    if above_level(over, levels):
+        reasons.append(f"the final model leaves the residual {over[0]:.4g}x (training) and {over[1]:.4g}x "
+                       f"(held back) the sensor noise, above its level {levels_text(levels)}: it does not "
+                       "reproduce this log")
     if search.not_ruled_out:
         reasons.append("candidate(s) " + ", ".join(sorted({c["candidate"] for c in search.not_ruled_out}))
                        + " could not be fitted and are not ruled out")
@@ -552,11 +546,11 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
         e.tentative, e.why_tentative = bool(own), "; ".join(own)
     table = plugin.regimes(final)
     unexplained = plugin.unexplained(final, table)
-    return named, unexplained, table, _summary(named, unexplained, over, search.not_ruled_out, c)
+    return named, unexplained, table, _summary(named, unexplained, over, levels, search.not_ruled_out, c)
 
 
 def _summary(named: list[NamedEffect], unexplained: list[dict[str, Any]], over: tuple[float, float] | None,
-             not_ruled_out: list[dict[str, Any]], constancy: dict[str, Any]) -> list[str]:
+             levels: tuple[float, float], not_ruled_out: list[dict[str, Any]], constancy: dict[str, Any]) -> list[str]:
     """The diagnosis in sentences, every one made from the numbers."""
     out = []
     for e in named:
@@ -577,14 +571,15 @@ def _summary(named: list[NamedEffect], unexplained: list[dict[str, Any]], over: 
     if over is None:
         out.append("the sensor's noise level is not known for this model: whether the final model explains the "
                    "log down to its noise cannot be told")
-    elif not _above_level(over):
+    elif not above_level(over, levels):
         out.append(f"the final model explains the log down to the sensor noise ({over[0]:.4g}x training, "
-                   f"{over[1]:.4g}x held back)")
+                   f"{over[1]:.4g}x held back; its level {levels_text(levels)})")
     elif named:
         out.append(f"a shape the library does not have, or an effect outside it, remains: the final model leaves "
-                   f"{max(over):.3g}x the sensor noise")
+                   f"{over[0]:.4g}x / {over[1]:.4g}x the sensor noise, above its level {levels_text(levels)}")
     else:
-        out.append(f"the base model leaves {max(over):.3g}x the sensor noise and no library effect removes it")
+        out.append(f"the base model leaves {over[0]:.4g}x / {over[1]:.4g}x the sensor noise, above its level "
+                   f"{levels_text(levels)}, and no library effect removes it")
     out += [f"unexplained: {u['regime']} ({u['detail']})" for u in unexplained]
     for c in not_ruled_out:
         out.append(f"{c['candidate']} (step {c['step']}) cannot be ruled out: {c['reason']}")

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from .. import CONFIDENT_OVER_NOISE
 from ..result import DiagnosisStep
 from ..screening import ScoreTest
 
@@ -166,6 +167,11 @@ class ModelPlugin(ABC):
     @abstractmethod
     def over_noise(self, model: Fitted) -> tuple[float, float] | None:
         """(training, held-back) residual RMS over the sensor noise, or None where the noise is not known."""
+
+    def confident_levels(self) -> tuple[float, float]:
+        """(training, held-back) levels of ``over_noise`` above which a model does not reproduce its log (its names
+        are then tentative). Default: ``CONFIDENT_OVER_NOISE`` on both."""
+        return CONFIDENT_OVER_NOISE, CONFIDENT_OVER_NOISE
 
     @abstractmethod
     def regimes(self, model: Fitted) -> pd.DataFrame:

@@ -42,8 +42,10 @@ from ...fitting.identify import (
     identify,
 )
 from ...fitting.logs import DriveLog, LogError
+from ...fitting.noise import at_noise_level
 from ...model.effects import EFFECTS
 from ...model.params import DriveParams
+from .. import CONFIDENT_ALPHA, CONFIDENT_OVER_NOISE
 from ..result import DiagnosisStep
 from ..screening import ScoreTest, best_of_grid, partial_out, score_test
 from . import two_inertia_report as report
@@ -515,12 +517,20 @@ class TwoInertiaPlugin(ModelPlugin):
         m = model.metrics
         return m["train_over_noise_load"], m["heldback_over_noise_load"]
 
+    def confident_levels(self) -> tuple[float, float]:
+        """The chance level of each part (``at_noise_level``: the noise was estimated on the training part), never
+        above ``CONFIDENT_OVER_NOISE``; on a short log the fixed level is within the noise's scatter, and names are
+        then tentative more often than ``CONFIDENT_ALPHA``, the safe side."""
+        parts = (self.stop, self.full.n - self.stop)
+        low, high = (min(CONFIDENT_OVER_NOISE, at_noise_level(n, self.stop, CONFIDENT_ALPHA)) for n in parts)
+        return low, high
+
     def regimes(self, model: Fitted) -> pd.DataFrame:
         sim = self.resimulated(model).state.sim
         return report.residual_regimes(self.full, sim, self.sigma, self.full.meta.f_m_Nm)
 
     def unexplained(self, model: Fitted, table: pd.DataFrame) -> list[dict[str, Any]]:
-        return report.unexplained(table, max(self.over_noise(model)))
+        return report.unexplained(table, self.over_noise(model), self.confident_levels())
 
     def step(self, model: Fitted, added: str | None, score: float | None, extra: dict[str, Any]) -> DiagnosisStep:
         return report.step(model, added, score, extra, self.resolution_pulses)

@@ -12,7 +12,7 @@ import pandas as pd
 from ...common.plotting import figure, save
 from ...fitting.logs import DriveLog
 from ...model.params import DriveParams
-from .. import CONFIDENT_OVER_NOISE
+from .. import above_level
 from ..result import DiagnosisStep
 
 #: a regime holds structure when its share of the residual energy is this many times its share of the samples ...
@@ -63,11 +63,13 @@ def _masks(log: DriveLog, sim: dict[str, np.ndarray], f_m: float) -> dict[str, n
     return masks
 
 
-def unexplained(table: pd.DataFrame, over_noise: float) -> list[dict[str, Any]]:
-    """Regimes still holding structure when the model is above the noise (``over_noise``: its residual RMS over the
-    load sensor's noise, the larger of training and held-back)."""
-    if over_noise <= CONFIDENT_OVER_NOISE or table.empty:
+def unexplained(table: pd.DataFrame, over: tuple[float, float], levels: tuple[float, float]
+                ) -> list[dict[str, Any]]:
+    """Regimes still holding structure when the model is above the noise (``over``: its residual RMS over the load
+    sensor's noise on the training and the held-back part; ``levels``: the plug-in's ``confident_levels``)."""
+    if not above_level(over, levels) or table.empty:
         return []
+    over_noise = max(over)
     out = []
     for row in table.itertuples():  # ranked by excess; a regime holding no more than its share is not "where"
         if len(out) == 4 or row.excess <= 1.0:
