@@ -24,11 +24,13 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
 7. **Say how sure**: a named effect is tentative when the final model leaves the sensor's residual above its level
    times its noise (``plugin.confident_levels``: what a model reproducing its log exceeds by chance with probability
    ``CONFIDENT_ALPHA``, at most ``CONFIDENT_OVER_NOISE``; a shape the library does not have, or an effect outside it),
-   when the final model, though at the noise, does not hold along the log (``_check_constancy``: refitted on each half
-   of the training data alone, its drive and effect parameters differ by a Wald test at ``DM_LEVEL``; an effect the
-   library has keeps its size, while a stand-in for one it lacks, e.g. asymmetric friction for a friction ripple
-   periodic in the motor angle, follows what each half visits), when a candidate was not ruled out, when the model it
-   extends already explained the log down to the noise (it may stand in for a named effect's shape the library lacks:
+   when the final model, at the noise overall, leaves a regime of the motion whose mean residual is further from zero
+   than chance allows (``plugin.unexplained``: an effect absorbed by a named one everywhere but there), when the final
+   model, though at the noise, does not hold along the log (``_check_constancy``: refitted on each half of the
+   training data alone, its drive and effect parameters differ by a Wald test at ``DM_LEVEL``; an effect the library
+   has keeps its size, while a stand-in for one it lacks, e.g. asymmetric friction for a friction ripple periodic in
+   the motor angle, follows what each half visits), when a candidate was not ruled out, when the model it extends
+   already explained the log down to the noise (it may stand in for a named effect's shape the library lacks:
    ``_doubts``), or when its refitted runner-up predicts the held-back data as well (the acceptance rule's
    Diebold-Mariano test cannot tell the two apart: e.g. load-side viscous damping and a small hysteresis both explain
    a ringing decay), or when the log does not pin its size (``sizes``: each named size is searched along its own axis
@@ -527,11 +529,30 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
         if e.name in search.size_checks:
             widen(named[-1], final, search.size_checks[e.name], search.doubts.setdefault(e.name, []))
     over, levels = plugin.over_noise(final), plugin.confident_levels()
+    table = plugin.regimes(final)
+    unexplained = plugin.unexplained(final, table)
+    reasons = _reasons(search, over, levels, unexplained)
+    for e in named:
+        own = reasons + search.doubts.get(e.name, [])
+        e.tentative, e.why_tentative = bool(own), "; ".join(own)
+    return named, unexplained, table, _summary(named, unexplained, over, levels, search.not_ruled_out,
+                                              search.constancy)
+
+
+def _reasons(search: _Search, over: tuple[float, float] | None, levels: tuple[float, float],
+             unexplained: list[dict[str, Any]]) -> list[str]:
+    """Why every name of the final model is tentative (step 7): it leaves the residual above its level of the
+    sensor noise; at the noise, its residual still holds structure in a regime of the motion (``unexplained``); a
+    candidate was not ruled out; its parameters do not hold between the two halves of the training data."""
     reasons = []
     if above_level(over, levels):
         reasons.append(f"the final model leaves the residual {over[0]:.4g}x (training) and {over[1]:.4g}x "
                        f"(held back) the sensor noise, above its level {levels_text(levels)}: it does not "
                        "reproduce this log")
+    elif over is not None and unexplained:
+        reasons.append("the final model is at the sensor noise overall, but its residual is not noise in "
+                       + "; ".join(f"{u['regime']} ({u['detail']})" for u in unexplained)
+                       + ": what it names may stand in for an effect the library lacks")
     if search.not_ruled_out:
         reasons.append("candidate(s) " + ", ".join(sorted({c["candidate"] for c in search.not_ruled_out}))
                        + " could not be fitted and are not ruled out")
@@ -541,12 +562,7 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
                        f"{c['wald']:.3g} on {c['df']} degrees of freedom, p = {c['p_value']:.2g}, below "
                        f"{c['level']:g}): what it names does not hold along the log, and may stand in for a shape "
                        "the library lacks or an effect outside it")
-    for e in named:
-        own = reasons + search.doubts.get(e.name, [])
-        e.tentative, e.why_tentative = bool(own), "; ".join(own)
-    table = plugin.regimes(final)
-    unexplained = plugin.unexplained(final, table)
-    return named, unexplained, table, _summary(named, unexplained, over, levels, search.not_ruled_out, c)
+    return reasons
 
 
 def _summary(named: list[NamedEffect], unexplained: list[dict[str, Any]], over: tuple[float, float] | None,
