@@ -359,7 +359,7 @@ def test_a_model_at_the_noise_with_a_biased_regime_is_not_confident() -> None:
     the regimes (3.97 standard errors for 14)."""
     from types import SimpleNamespace
 
-    from ident.diagnosis.engine import _reasons
+    from ident.diagnosis.engine import _reasons, _summary
     from ident.diagnosis.models.two_inertia_report import biased, unexplained
 
     def table(bias: list[float]) -> pd.DataFrame:
@@ -381,6 +381,9 @@ def test_a_model_at_the_noise_with_a_biased_regime_is_not_confident() -> None:
     assert len(reasons) == 1 and "not noise in regime 0" in reasons[0]
     assert _reasons(search, (0.985, 0.984), levels, []) == []  # type: ignore[arg-type]
     assert _reasons(search, None, levels, found) == []  # type: ignore[arg-type]
+    said = _summary([], found, (0.985, 0.984), levels, [], {})
+    assert any("at the sensor noise overall" in x and "3 regime(s)" in x for x in said), said
+    assert sum(x.startswith("unexplained: regime") for x in said) == 3
 
 
 def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None:

@@ -18,7 +18,8 @@ DEFAULT_BUDGET = 300.0
 #: deviations of that scatter at 35,000 samples: a new drive's model with a wrong name ended at 1.041x, some 2,900
 #: noise variances above the truth's cost, and was named confidently.
 CONFIDENT_OVER_NOISE = 1.05
-#: the chance that a model reproducing its log is above its level on a part (``CONFIDENT_OVER_NOISE``)
+#: the chance that a model reproducing its log is above its level on a part (the level is at most
+#: ``CONFIDENT_OVER_NOISE``), and that a regime of its residual is biased beyond chance
 CONFIDENT_ALPHA = 1e-3
 
 

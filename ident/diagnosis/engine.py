@@ -588,8 +588,10 @@ def _summary(named: list[NamedEffect], unexplained: list[dict[str, Any]], over: 
         out.append("the sensor's noise level is not known for this model: whether the final model explains the "
                    "log down to its noise cannot be told")
     elif not above_level(over, levels):
-        out.append(f"the final model explains the log down to the sensor noise ({over[0]:.4g}x training, "
-                   f"{over[1]:.4g}x held back; its level {levels_text(levels)})")
+        gap = (f"({over[0]:.4g}x training, {over[1]:.4g}x held back; its level {levels_text(levels)})")
+        out.append(f"the final model explains the log down to the sensor noise {gap}" if not unexplained else
+                   f"the final model is at the sensor noise overall {gap}, but its residual's mean is off zero in "
+                   f"{len(unexplained)} regime(s) of the motion: an effect the library lacks may remain")
     elif named:
         out.append(f"a shape the library does not have, or an effect outside it, remains: the final model leaves "
                    f"{over[0]:.4g}x / {over[1]:.4g}x the sensor noise, above its level {levels_text(levels)}")
