@@ -312,9 +312,13 @@ def test_the_confidence_level_is_the_noise_scatter_of_each_part_under_a_ceiling(
     each part (``TwoInertiaPlugin.confident_levels``): the level falls with the part's length and the noise estimate's
     (the training part), and never rises above ``CONFIDENT_OVER_NOISE``. On a 3 s log at 5 kHz the training part
     (10,500 samples) is at 1.045x, the held-back part (4,500) would be above 1.05x and is held at it; a 10 s log's
-    parts are at 1.024x and 1.028x, where a new drive's model with a wrong name ended at 1.041x."""
+    parts are at 1.024x and 1.028x, where a new drive's model with a wrong name ended at 1.041x; the summary then says
+    the model does not reproduce the log and its sizes are not to be trusted (its viscous load was a tenth of the
+    truth: the refits had stopped in another basin)."""
     from ident.diagnosis import CONFIDENT_ALPHA, CONFIDENT_OVER_NOISE, above_level
+    from ident.diagnosis.engine import _summary
     from ident.diagnosis.models.two_inertia import TwoInertiaPlugin
+    from ident.diagnosis.result import NamedEffect
     from ident.fitting.noise import at_noise_level
 
     log, _ = load(Case("single", 5102, "viscous_load", "medium", "default"), **SHORT)
@@ -327,6 +331,9 @@ def test_the_confidence_level_is_the_noise_scatter_of_each_part_under_a_ceiling(
     assert not above_level((train * 0.999, held * 0.999), (train, held)) and not above_level(None, (train, held))
     ten_s = (at_noise_level(35000, 35000, CONFIDENT_ALPHA), at_noise_level(15000, 35000, CONFIDENT_ALPHA))
     assert above_level((1.041, 1.0), ten_s) and not above_level((1.041, 1.0), (CONFIDENT_OVER_NOISE,) * 2)
+    named = [NamedEffect("viscous_load", 9.6e-4, (8.7e-4, 1.05e-3), "N.m.s/rad", "", None, None)]
+    said = " ".join(_summary(named, [], (1.042, 1.043), ten_s, [], {}))
+    assert "does not reproduce this log" in said and "1.042x / 1.043x" in said and "not to be trusted" in said
 
 
 def test_a_model_is_read_against_the_lower_of_the_two_noise_estimates() -> None:

@@ -593,8 +593,10 @@ def _summary(named: list[NamedEffect], unexplained: list[dict[str, Any]], over: 
                    f"the final model is at the sensor noise overall {gap}, but its residual's mean is off zero in "
                    f"{len(unexplained)} regime(s) of the motion: an effect the library lacks may remain")
     elif named:
-        out.append(f"a shape the library does not have, or an effect outside it, remains: the final model leaves "
-                   f"{over[0]:.4g}x / {over[1]:.4g}x the sensor noise, above its level {levels_text(levels)}")
+        out.append(f"the final model does not reproduce this log: it leaves {over[0]:.4g}x / {over[1]:.4g}x the "
+                   f"sensor noise, above its level {levels_text(levels)}. A shape the library does not have, an "
+                   "effect outside it, or a library effect whose size no refit reached (a fit that stopped in "
+                   "another basin) remains; the sizes named are not to be trusted")
     else:
         out.append(f"the base model leaves {over[0]:.4g}x / {over[1]:.4g}x the sensor noise, above its level "
                    f"{levels_text(levels)}, and no library effect removes it")
