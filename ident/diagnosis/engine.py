@@ -24,13 +24,13 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
 7. **Say how sure**: a named effect is tentative when the final model leaves the sensor's residual above its level
    times its noise (``plugin.confident_levels``: what a model reproducing its log exceeds by chance with probability
    ``CONFIDENT_ALPHA``, at most ``CONFIDENT_OVER_NOISE``; a shape the library does not have, or an effect outside it),
-   when the final model, at the noise overall, leaves a regime of the motion whose mean residual is further from zero
-   than chance allows (``plugin.unexplained``: an effect absorbed by a named one everywhere but there), when the final
-   model, though at the noise, does not hold along the log (``_check_constancy``: refitted on each half of the
-   training data alone, its drive and effect parameters differ by a Wald test at ``DM_LEVEL``; an effect the library
-   has keeps its size, while a stand-in for one it lacks, e.g. asymmetric friction for a friction ripple periodic in
-   the motor angle, follows what each half visits), when a candidate was not ruled out, when the model it extends
-   already explained the log down to the noise (it may stand in for a named effect's shape the library lacks:
+   when the final model, at the noise overall, leaves a regime of the motion whose mean training residual is further
+   from zero than chance allows (``plugin.unexplained``: an effect absorbed by a named one everywhere but there), when
+   the final model, though at the noise, does not hold along the log (``_check_constancy``: refitted on each half of
+   the training data alone, its drive and effect parameters differ by a Wald test at ``DM_LEVEL``; an effect the
+   library has keeps its size, while a stand-in for one it lacks, e.g. asymmetric friction for a friction ripple
+   periodic in the motor angle, follows what each half visits), when a candidate was not ruled out, when the model it
+   extends already explained the log down to the noise (it may stand in for a named effect's shape the library lacks:
    ``_doubts``), or when its refitted runner-up predicts the held-back data as well (the acceptance rule's
    Diebold-Mariano test cannot tell the two apart: e.g. load-side viscous damping and a small hysteresis both explain
    a ringing decay), or when the log does not pin its size (``sizes``: each named size is searched along its own axis

@@ -45,7 +45,7 @@ from ...fitting.logs import DriveLog, LogError
 from ...fitting.noise import at_noise_level, residual_noise_std
 from ...model.effects import EFFECTS
 from ...model.params import DriveParams
-from .. import CONFIDENT_ALPHA, CONFIDENT_OVER_NOISE
+from .. import CONFIDENT_ALPHA, CONFIDENT_OVER_NOISE, above_level
 from ..result import DiagnosisStep
 from ..screening import ScoreTest, best_of_grid, partial_out, score_test
 from . import two_inertia_report as report
@@ -531,7 +531,14 @@ class TwoInertiaPlugin(ModelPlugin):
                                        self.full.meta.f_m_Nm)
 
     def unexplained(self, model: Fitted, table: pd.DataFrame) -> list[dict[str, Any]]:
-        return report.unexplained(table, self.over_noise(model), self.confident_levels())
+        """Above its level: where the residual sits in ``table`` (the whole log). At the noise: the regimes whose
+        mean residual on the training part is beyond chance (``report.biased``)."""
+        over = self.over_noise(model)
+        if above_level(over, self.confident_levels()):
+            return report.unexplained(table, max(over))
+        model = self.resimulated(model)
+        return report.biased(report.residual_regimes(self.full, model.state.sim, model.metrics["noise_load_rad"],
+                                                     self.full.meta.f_m_Nm, slice(0, self.stop)))
 
     def step(self, model: Fitted, added: str | None, score: float | None, extra: dict[str, Any]) -> DiagnosisStep:
         return report.step(model, added, score, extra, self.resolution_pulses)
