@@ -23,7 +23,6 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import pytest
 from scipy import stats
 
@@ -355,48 +354,6 @@ def test_a_model_is_read_against_the_lower_of_the_two_noise_estimates() -> None:
     assert misfit["train_over_noise_load"] > 1.03
     right = _metrics_of(log, white, np.zeros(log.n), stop, sigma)
     assert right["noise_load_rad"] <= sigma and right["train_over_noise_load"] == pytest.approx(1.0, abs=0.02)
-
-
-def test_a_model_at_the_noise_with_a_biased_regime_is_not_confident() -> None:
-    """A model at the noise overall can still leave structure in a regime of the motion: an independent log's friction
-    ripple (periodic in the motor angle, outside the library) was fitted to 0.999x the noise by asymmetric friction,
-    named confidently, while its training residual's mean was -8.1 standard errors where the load moved fast. Such a
-    regime is reported as unexplained and makes every name tentative; a model whose regimes stay within chance (the
-    right effect on a torque-step log: within 1.1 on its training part) is not touched. The level is the two-sided
-    ``CONFIDENT_ALPHA`` shared over the regimes (3.97 standard errors for 14). Only the training part is read: on
-    the held-back part a right model predicts, and its small errors add up into an offset on a torque-step log
-    (-13.5 standard errors where the torque was off)."""
-    from types import SimpleNamespace
-
-    from ident.diagnosis.engine import _reasons, _summary
-    from ident.diagnosis.models.two_inertia_report import biased, residual_regimes
-
-    def table(bias: list[float]) -> pd.DataFrame:
-        return pd.DataFrame({"regime": [f"regime {i}" for i in range(len(bias))], "share_samples_pct": 10.0,
-                             "share_residual_pct": 10.0, "excess": 1.0, "bias_sigma": bias, "rms_rad": 1e-8,
-                             "mean_rad": [b * 1e-10 for b in bias]})
-
-    right = table([1.1, -1.1, 1.0] + [0.5] * 11)
-    ripple = table([-8.1, -5.8, -5.2] + [0.5] * 11)
-    assert biased(right) == []
-    found = biased(ripple)
-    assert [u["regime"] for u in found] == ["regime 0", "regime 1", "regime 2"]
-    assert "-8.1 standard errors" in found[0]["detail"] and "3.97 that chance allows" in found[0]["detail"]
-    levels = (1.024, 1.028)
-    search = SimpleNamespace(not_ruled_out=[], constancy={})
-    reasons = _reasons(search, (0.985, 0.984), levels, found)  # type: ignore[arg-type]
-    assert len(reasons) == 1 and "not noise in regime 0" in reasons[0]
-    assert _reasons(search, (0.985, 0.984), levels, []) == []  # type: ignore[arg-type]
-    assert _reasons(search, None, levels, found) == []  # type: ignore[arg-type]
-    log, _ = load(Case("single", 5102, "viscous_load", "medium", "default"), **SHORT)
-    rng, stop = np.random.default_rng(20261126), int(0.7 * log.n)
-    drift = rng.normal(0.0, 1e-8, log.n) - 2e-9 * (np.arange(log.n) >= stop)   # a prediction offset, held back
-    sim = {"res_l": drift, "v_l": rng.normal(size=log.n), "v_m": rng.normal(size=log.n), "q_m": rng.normal(size=log.n)}
-    assert biased(residual_regimes(log, sim, 1e-8, log.meta.f_m_Nm))   # the whole log: the offset is "structure"
-    assert biased(residual_regimes(log, sim, 1e-8, log.meta.f_m_Nm, slice(0, stop))) == []   # the training part
-    said = _summary([], found, (0.985, 0.984), levels, [], {})
-    assert any("at the sensor noise overall" in x and "3 regime(s)" in x for x in said), said
-    assert sum(x.startswith("unexplained: regime") for x in said) == 3
 
 
 def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None:

@@ -24,10 +24,8 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
 7. **Say how sure**: a named effect is tentative when the final model leaves the sensor's residual above its level
    times its noise (``plugin.confident_levels``: what a model reproducing its log exceeds by chance with probability
    ``CONFIDENT_ALPHA``, at most ``CONFIDENT_OVER_NOISE``; a shape the library does not have, or an effect outside it),
-   when the final model, at the noise overall, leaves a regime of the motion whose mean training residual is further
-   from zero than chance allows (``plugin.unexplained``: an effect absorbed by a named one everywhere but there), when
-   the final model, though at the noise, does not hold along the log (``_check_constancy``: refitted on each half of
-   the training data alone, its drive and effect parameters differ by a Wald test at ``DM_LEVEL``; an effect the
+   when the final model, though at the noise, does not hold along the log (``_check_constancy``: refitted on each half
+   of the training data alone, its drive and effect parameters differ by a Wald test at ``DM_LEVEL``; an effect the
    library has keeps its size, while a stand-in for one it lacks, e.g. asymmetric friction for a friction ripple
    periodic in the motor angle, follows what each half visits), when a candidate was not ruled out, when the model it
    extends already explained the log down to the noise (it may stand in for a named effect's shape the library lacks:
@@ -531,7 +529,7 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
     over, levels = plugin.over_noise(final), plugin.confident_levels()
     table = plugin.regimes(final)
     unexplained = plugin.unexplained(final, table)
-    reasons = _reasons(search, over, levels, unexplained)
+    reasons = _reasons(search, over, levels)
     for e in named:
         own = reasons + search.doubts.get(e.name, [])
         e.tentative, e.why_tentative = bool(own), "; ".join(own)
@@ -539,20 +537,15 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
                                               search.constancy)
 
 
-def _reasons(search: _Search, over: tuple[float, float] | None, levels: tuple[float, float],
-             unexplained: list[dict[str, Any]]) -> list[str]:
+def _reasons(search: _Search, over: tuple[float, float] | None, levels: tuple[float, float]) -> list[str]:
     """Why every name of the final model is tentative (step 7): it leaves the residual above its level of the
-    sensor noise; at the noise, its residual still holds structure in a regime of the motion (``unexplained``); a
-    candidate was not ruled out; its parameters do not hold between the two halves of the training data."""
+    sensor noise; a candidate was not ruled out; its parameters do not hold between the two halves of the training
+    data."""
     reasons = []
     if above_level(over, levels):
         reasons.append(f"the final model leaves the residual {over[0]:.4g}x (training) and {over[1]:.4g}x "
                        f"(held back) the sensor noise, above its level {levels_text(levels)}: it does not "
                        "reproduce this log")
-    elif over is not None and unexplained:
-        reasons.append("the final model is at the sensor noise overall, but its residual is not noise in "
-                       + "; ".join(f"{u['regime']} ({u['detail']})" for u in unexplained)
-                       + ": what it names may stand in for an effect the library lacks")
     if search.not_ruled_out:
         reasons.append("candidate(s) " + ", ".join(sorted({c["candidate"] for c in search.not_ruled_out}))
                        + " could not be fitted and are not ruled out")
@@ -588,10 +581,8 @@ def _summary(named: list[NamedEffect], unexplained: list[dict[str, Any]], over: 
         out.append("the sensor's noise level is not known for this model: whether the final model explains the "
                    "log down to its noise cannot be told")
     elif not above_level(over, levels):
-        gap = (f"({over[0]:.4g}x training, {over[1]:.4g}x held back; its level {levels_text(levels)})")
-        out.append(f"the final model explains the log down to the sensor noise {gap}" if not unexplained else
-                   f"the final model is at the sensor noise overall {gap}, but its residual's mean is off zero in "
-                   f"{len(unexplained)} regime(s) of the motion: an effect the library lacks may remain")
+        out.append(f"the final model explains the log down to the sensor noise ({over[0]:.4g}x training, "
+                   f"{over[1]:.4g}x held back; its level {levels_text(levels)})")
     elif named:
         out.append(f"the final model does not reproduce this log: it leaves {over[0]:.4g}x / {over[1]:.4g}x the "
                    f"sensor noise, above its level {levels_text(levels)}. A shape the library does not have, an "

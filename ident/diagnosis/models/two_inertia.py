@@ -531,14 +531,8 @@ class TwoInertiaPlugin(ModelPlugin):
                                        self.full.meta.f_m_Nm)
 
     def unexplained(self, model: Fitted, table: pd.DataFrame) -> list[dict[str, Any]]:
-        """Above its level: where the residual sits in ``table`` (the whole log). At the noise: the regimes whose
-        mean residual on the training part is beyond chance (``report.biased``)."""
         over = self.over_noise(model)
-        if above_level(over, self.confident_levels()):
-            return report.unexplained(table, max(over))
-        model = self.resimulated(model)
-        return report.biased(report.residual_regimes(self.full, model.state.sim, model.metrics["noise_load_rad"],
-                                                     self.full.meta.f_m_Nm, slice(0, self.stop)))
+        return report.unexplained(table, max(over)) if above_level(over, self.confident_levels()) else []
 
     def step(self, model: Fitted, added: str | None, score: float | None, extra: dict[str, Any]) -> DiagnosisStep:
         return report.step(model, added, score, extra, self.resolution_pulses)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from statistics import NormalDist
 from typing import Any
 
 import numpy as np
@@ -13,7 +12,6 @@ import pandas as pd
 from ...common.plotting import figure, save
 from ...fitting.logs import DriveLog
 from ...model.params import DriveParams
-from .. import CONFIDENT_ALPHA
 from ..result import DiagnosisStep
 
 #: a regime holds structure when its share of the residual energy is this many times its share of the samples ...
@@ -22,17 +20,14 @@ EXCESS = 2.0
 BIAS_SIGMA = 10.0
 
 
-def residual_regimes(log: DriveLog, sim: dict[str, np.ndarray], sigma_l: float, f_m: float,
-                     part: slice = slice(None)) -> pd.DataFrame:
+def residual_regimes(log: DriveLog, sim: dict[str, np.ndarray], sigma_l: float, f_m: float) -> pd.DataFrame:
     """Ranked table of where the load residual lives: for each regime its share of the samples, its share of the
-    residual energy, their ratio (``excess``), the mean residual in standard errors (``bias_sigma``) and the RMS.
-    ``part``: the samples read (the regimes are those of the whole log)."""
-    res = sim["res_l"][part]
+    residual energy, their ratio (``excess``), the mean residual in standard errors (``bias_sigma``) and the RMS."""
+    res = sim["res_l"]
     e = res**2
     total = float(e.sum()) or 1.0
     rows = []
-    for name, whole in _masks(log, sim, f_m).items():
-        m = whole[part]
+    for name, m in _masks(log, sim, f_m).items():
         cnt = int(m.sum())
         if cnt < 20:
             continue
@@ -88,27 +83,6 @@ def unexplained(table: pd.DataFrame, over_noise: float) -> list[dict[str, Any]]:
                     "detail": f"residual {over_noise:.3g}x the load sensor noise, spread evenly over the regimes "
                               f"(no regime holds more than {EXCESS:g}x its share of the samples)"})
     return out
-
-
-def biased(table: pd.DataFrame, alpha: float = CONFIDENT_ALPHA) -> list[dict[str, Any]]:
-    """Regimes of a model at the noise whose mean residual is further from zero than a model reproducing its log
-    gives by chance: ``bias_sigma`` (the mean over its standard error) beyond the two-sided level ``alpha``, shared
-    over the regimes tested (Bonferroni: the regimes overlap, so the test is conservative). ``table``: the regimes
-    of the training part alone: on the held-back part a model with the right effect predicts, and on a torque-step
-    log its small parameter errors add up slide after slide into an offset (measured: -13.5 standard errors where
-    the torque was off, the right effect named; within 1.1 on its training part).
-
-    Why: a model can reach the noise overall while an effect the library lacks is absorbed by a named one, except in
-    a few regimes of the motion, which the RMS cannot see. Measured on an independent log with a friction ripple
-    periodic in the motor angle: asymmetric friction fitted it to 0.999x the noise, but the training residual's mean
-    was -8.1 standard errors while the load moved fast and -5.8 in the torque band 1-2; a model with the right
-    effect on another log stayed within 1.1. The standard error assumes the sensor's noise is white, like every fit and
-    the noise estimate here."""
-    z = NormalDist().inv_cdf(1.0 - alpha / (2.0 * len(table)))
-    return [{"regime": row.regime, "share_pct": round(row.share_residual_pct, 2),
-             "detail": f"mean residual {row.mean_rad:.3g} rad, {row.bias_sigma:+.1f} standard errors over "
-                       f"{row.share_samples_pct:.1f} % of the training samples, beyond the {z:.2f} that chance allows"}
-            for row in table.itertuples() if abs(row.bias_sigma) > z]
 
 
 def step(model: Any, added: str | None, score: float | None, extra: dict[str, Any],
