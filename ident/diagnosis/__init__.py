@@ -19,7 +19,7 @@ DEFAULT_BUDGET = 300.0
 #: noise variances above the truth's cost, and was named confidently.
 CONFIDENT_OVER_NOISE = 1.05
 #: the chance that a model reproducing its log is above its level on a part (the level is at most
-#: ``CONFIDENT_OVER_NOISE``), and that a regime of its residual is biased beyond chance
+#: ``CONFIDENT_OVER_NOISE``)
 CONFIDENT_ALPHA = 1e-3
 
 
