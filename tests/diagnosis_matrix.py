@@ -10,8 +10,9 @@ Every log comes from the independent generator (``tests/reference/generator``: n
   effect outside the library (actuator lag, friction ripple).
 
 Seeds are the generator's suites (5101-5410), none of which appears in the product code. ``run_case`` diagnoses one
-log and scores it; ``summarize`` makes the class table (named / missed / false), the magnitude errors where the
-generator's shape is the library's, the wall times per class and what the screen ranked first.
+log and scores it; ``summarize`` makes the class table (named / missed / false), the magnitude errors and the
+intervals' coverage where the generator's shape is the library's, the wall times per class and what the screen
+ranked first.
 """
 from __future__ import annotations
 
@@ -25,11 +26,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import stats
 
 from ident import read_log
 from tests.reference.generator import logs as generator
 
 CLASSES = ("single", "clean", "two_effect", "outside")
+Z95 = float(stats.norm.ppf(0.975))
 
 
 @dataclass(frozen=True)
@@ -167,7 +170,8 @@ def success(r: dict[str, Any]) -> bool:
 def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
     """Per class: logs, successes (``success``), named right / missed / false (``confident_false``: of them, named
     without a doubt), confident names, wall time median and max, the screen's first-ranked candidate; the magnitude
-    errors where the shape is the library's."""
+    errors where the shape is the library's, and how often their 95 % intervals hold the truth (``coverage``, for
+    confident and tentative names apart)."""
     table = {}
     for cls in CLASSES:
         rs = [r for r in results if r["class"] == cls]
@@ -191,4 +195,22 @@ def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
     return {"classes": table, "magnitudes": {
         "n": len(mags), "within_10pct": sum(m["rel_err"] <= 0.1 for m in mags),
         "median_rel_err": float(np.median([m["rel_err"] for m in mags])) if mags else math.nan,
-        "max_rel_err": float(np.max([m["rel_err"] for m in mags])) if mags else math.nan}}
+        "max_rel_err": float(np.max([m["rel_err"] for m in mags])) if mags else math.nan},
+        "intervals": {kind: coverage([m for m in mags if m["tentative"] == (kind == "tentative")])
+                      for kind in ("confident", "tentative")}}
+
+
+def interval_z(m: dict[str, Any]) -> float:
+    """How far the truth lies from a named magnitude, in standard deviations of its 95 % interval (the side of the
+    interval that faces the truth: a widened interval need not be symmetric)."""
+    lo, hi = m["ci95"]
+    half = (hi - m["magnitude"]) if m["truth"] >= m["magnitude"] else (m["magnitude"] - lo)
+    return (m["magnitude"] - m["truth"]) / (half / Z95) if half > 0 else math.inf
+
+
+def coverage(mags: list[dict[str, Any]]) -> dict[str, Any]:
+    """How many 95 % intervals hold the generator's truth (where its shape is the library's), and the largest miss
+    in standard deviations: a 95 % interval should hold it about 19 times in 20, a confident one above all."""
+    z = [interval_z(m) for m in mags]
+    return {"n": len(z), "covered": sum(abs(x) <= Z95 for x in z),
+            "max_abs_z": float(max(map(abs, z))) if z else math.nan}

@@ -30,7 +30,7 @@ from ident.diagnosis import screening
 from ident.diagnosis.engine import MIN_GAIN, diagnose, dm_pvalue, verdict
 from ident.diagnosis.models import Fitted
 from ident.fitting.logs import LogError
-from tests.diagnosis_matrix import Case, library_truth, load
+from tests.diagnosis_matrix import Case, coverage, library_truth, load
 
 SHORT = dict(duration_s=3.0, rate_hz=5000.0)
 CLEAN = Case("clean", 5501)
@@ -582,12 +582,26 @@ def test_data_errors_are_caught_before_any_effect_is_named():
 
 # ------------------------------------------------------------------------------------------ the matrix (slow) ----
 
+def test_the_matrix_counts_an_interval_by_the_side_that_faces_the_truth() -> None:
+    """The matrix's coverage (``tests.diagnosis_matrix.coverage``): a 95 % interval holds the truth within its own
+    half-width on the truth's side; a widened, lopsided interval is read on that side, so a wide far side does not
+    hide a miss."""
+    def mag(value: float, lo: float, hi: float, truth: float) -> dict:
+        return {"magnitude": value, "ci95": [lo, hi], "truth": truth}
+    held, missed = mag(1.0, 0.9, 1.1, 1.05), mag(1.0, 0.99, 1.5, 0.9)   # 0.9 is 19.6 sd below on its side
+    c = coverage([held, missed])
+    assert (c["n"], c["covered"]) == (2, 1)
+    assert math.isclose(c["max_abs_z"], 0.1 / (0.01 / 1.959964), rel_tol=1e-5)
+    assert coverage([])["n"] == 0
+
+
 @pytest.mark.slow
 def test_matrix(tmp_path_factory):
     """The issue's randomized matrix (``tests/diagnosis_matrix.py``) at the generator's own durations and rates:
     the right effect named in >= 90 % of single-effect logs, nothing named on any clean log, both effects in >= 80 %
     of two-effect logs, no confident name on any log with an effect outside the library and "unexplained" on most;
-    magnitudes within 10 % where the shape is the library's (>= 90 % of them)."""
+    magnitudes within 10 % where the shape is the library's (>= 90 % of them), and their confident 95 % intervals
+    holding the truth as often as 95 % intervals do (fewer has a chance below 0.1 %)."""
     from tests.diagnosis_matrix import matrix, run_case, summarize
 
     results = [run_case(c, workers=2) for c in matrix()]
@@ -601,6 +615,8 @@ def test_matrix(tmp_path_factory):
     assert c["outside"]["success"] == c["outside"]["logs"], s
     assert c["outside"]["logs_with_unexplained"] > 0.5 * c["outside"]["logs"], s
     assert s["magnitudes"]["within_10pct"] >= 0.9 * s["magnitudes"]["n"], s
+    iv = s["intervals"]["confident"]   # 95 % intervals: fewer hits than this has a chance of 0.1 %
+    assert iv["covered"] >= stats.binom.ppf(1e-3, iv["n"], 0.95), s
 
 
 def _env() -> dict[str, str]:
