@@ -263,12 +263,15 @@ class _Search:
         def run(fn: Any, tasks: list[tuple]) -> list[Any]:
             return self.pool.map(fn, tasks, desc=f"size search ({name})")
 
-        out, self.size_checks[name], note = search_size(run, self.shared, model, name, self.budget,
-                                                        inflation=lambda m: self.plugin.size_inflation(m, name))
-        if note:
-            self.notes.append(f"size search: {name} {note}")
-            self.doubts.setdefault(name, []).append(note)
-        return out, out is not model
+        found = search_size(run, self.shared, model, name, self.budget,
+                            inflation=lambda m: self.plugin.size_inflation(m, name), separable=SEPARABLE)
+        self.size_checks[name] = found.checks
+        if found.doubt:
+            self.notes.append(f"size search: {name} {found.doubt}")
+            self.doubts.setdefault(name, []).append(found.doubt)
+        if found.refined:
+            self.notes.append(f"size search: {name} {found.refined}")
+        return found.model, found.model is not model
 
     def _step(self, current: Fitted, names: tuple[str, ...]) -> Fitted | None:
         """One forward step: screen, refit the passing candidates, accept one. Returns the new model, ``current``
