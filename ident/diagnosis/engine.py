@@ -33,9 +33,10 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    Diebold-Mariano test cannot tell the two apart: e.g. load-side viscous damping and a small hysteresis both explain
    a ringing decay), or when the log does not pin its size (``sizes``: each named size is searched along its own axis
    with the rest refitted, and checked ``SIZE_PROBE`` either side; a check that fits as well makes the name tentative,
-   one that fits worse widens the interval to its secant; not searched when the final model is above the noise: its
-   names are tentative already), or when its size search moved the model (the free refits it was chosen by had
-   stalled), or when its twin (``plugin.twin_of``: viscous friction on the other side of the gear) fits the training
+   one that fits worse widens the interval to its secant, one that rises unequally moves the size to its profile's
+   vertex and checks it again; not searched when the final model is above the noise: its names are tentative
+   already), or when its size search moved the model (the free refits it was chosen by had stalled; a move to the
+   vertex by less than ``SEPARABLE`` noise variances is a refinement, not a doubt), or when its twin (``plugin.twin_of``: viscous friction on the other side of the gear) fits the training
    data within ``SEPARABLE`` noise variances of it (``_twin_doubt``); what is left is localised by regime
    (*unexplained*), never named.
 
