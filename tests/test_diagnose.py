@@ -397,10 +397,12 @@ def test_a_model_is_read_against_the_lower_of_the_two_noise_estimates() -> None:
 
 def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None:
     """The loop's last size search (``_Search._settle``) probes every named size on a final model at the noise, and
-    none on one above ``CONFIDENT_OVER_NOISE`` times it (on the training or the held-back data): its names are
-    tentative for that reason whatever the search finds, and the report says the search was not run. On an
-    actuator-lag log (outside the library) it took 210 s of 462 s for three tentative names. When no search moves
-    the model each size is searched once (the earlier ones were searched again, though nothing had moved)."""
+    none on one above ``CONFIDENT_OVER_NOISE`` times it on the training data (the data the search fits): its names
+    are tentative for that reason whatever the search finds, and the report says the search was not run. On an
+    actuator-lag log (outside the library) it took 210 s of 462 s for three tentative names. A model at the noise on
+    the training data but above it on the held-back data is searched: a stalled refit mispredicts the held-back data
+    (measured: hysteresis from 1.116x to 1.002x the noise held back). When no search moves the model each size is
+    searched once (the earlier ones were searched again, though nothing had moved)."""
     from ident.diagnosis import CONFIDENT_OVER_NOISE
     from ident.diagnosis.engine import _Say, _Search
     from ident.diagnosis.result import NamedEffect
@@ -430,7 +432,7 @@ def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None
             return 1.0
 
     losses = np.ones(100)
-    for over, probed in (((1.0, 0.99), True), ((1.0, CONFIDENT_OVER_NOISE * 1.01), False),
+    for over, probed in (((1.0, 0.99), True), ((1.0, CONFIDENT_OVER_NOISE * 1.01), True),
                          ((CONFIDENT_OVER_NOISE * 1.01, 1.0), False)):
         pool = Pool()
         search = _Search(Plugin(), pool, None, 3, _Say(False))
