@@ -26,13 +26,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from ident import read_log
+from ident.diagnosis.sizes import Z95
 from tests.reference.generator import logs as generator
 
 CLASSES = ("single", "clean", "two_effect", "outside")
-Z95 = float(stats.norm.ppf(0.975))
 
 
 @dataclass(frozen=True)
