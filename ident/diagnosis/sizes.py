@@ -141,10 +141,7 @@ def vertex(cur: Fitted, probes: list[Fitted | None], min_gain: float = 1.0,
     if not (lo > 0 and hi > 0):
         return None
     fall = (hi - lo) ** 2 / (8.0 * (lo + hi))
-    rv = residual_variance(cur)
-    if fall <= rv or fall <= (min_gain - 1.0) * cur.train_cost:
-        return None
-    if inflation is not None and fall <= max(1.0, float(inflation(cur))) * rv:
+    if fall <= (min_gain - 1.0) * cur.train_cost or not _beyond_chance(cur, [fall], inflation)[0]:
         return None
     return 1.0 + SIZE_PROBE * (lo - hi) / (2.0 * (lo + hi))
 
@@ -178,11 +175,19 @@ def _better(cur: Fitted, probes: list[Fitted | None], inflation: Callable[[Fitte
     19-25x the noise), where a hysteresis rival's search moved 8 rounds for 10-280 residual variances a round (1.3 %
     of the cost in all); 840 for the stalled viscous candidate of drive 5103's torque-step log with a hidden
     motor-side viscous friction (2.8x the noise), whose search still falls to the noise."""
+    falls = [-math.inf if p is None else cur.train_cost - p.train_cost for p in probes]
+    return [(p.train_cost, i) for i, (p, ok) in enumerate(zip(probes, _beyond_chance(cur, falls, inflation))) if ok]
+
+
+def _beyond_chance(cur: Fitted, falls: list[float], inflation: Callable[[Fitted], float] | None) -> list[bool]:
+    """Whether each fall of the training cost from ``cur`` is more than chance gives a profile point: one residual
+    variance (``residual_variance``) times the size's inflation at ``cur`` (``_better``), which is asked only when
+    some fall passes one residual variance (it costs a covariance). The one threshold of the probes and the vertex."""
     rv = residual_variance(cur)
-    out = [(p.train_cost, i) for i, p in enumerate(probes) if p is not None and p.train_cost < cur.train_cost - rv]
-    if out and inflation is not None:
-        c = max(1.0, float(inflation(cur)))
-        out = [(cost, i) for cost, i in out if cost < cur.train_cost - c * rv]
+    out = [f > rv for f in falls]
+    if any(out) and inflation is not None:
+        c = max(1.0, float(inflation(cur))) * rv
+        out = [o and f > c for o, f in zip(out, falls)]
     return out
 
 
