@@ -444,6 +444,78 @@ def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None
         assert set(search.size_checks) == ({"stribeck", "hysteresis"} if probed else set())
 
 
+def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -> None:
+    """``_Search._step``: a candidate whose refit passes the rule with a size not told from 0 (or fails its drop
+    test) gained by refitting the rest; the model without it, refitted from there (``plugin.without``), replaces the
+    current model when it predicts the held-back data better than the current model and than the step's winner, and
+    the step is run again against it. Measured on a two-effect log (viscous load and an exponential Stribeck): the
+    viscous-load model had stalled at 47.5x the noise and 15x the true coefficient, and hysteresis of no significant
+    size fitted 1000x better. A reduced model worse than the winner leaves the winner accepted."""
+    from ident.diagnosis.engine import _Say, _Search
+    from ident.diagnosis.models import CandidateFit, Magnitude
+    from ident.diagnosis.result import DiagnosisStep
+    from ident.diagnosis.screening import ScoreTest
+
+    rng = np.random.default_rng(11)
+    noise = rng.normal(size=4000) ** 2
+
+    def model(effects: tuple[str, ...], scale: float) -> Fitted:
+        return Fitted(effects, 4000.0 * scale, 4000.0 * scale, noise * scale, 4000, 4 + len(effects))
+
+    class Pool:
+        def __init__(self, fits: list[CandidateFit]) -> None:
+            self.fits = fits
+
+        def share(self, plugin: object) -> object:
+            return plugin
+
+        def map(self, fn: object, tasks: list[tuple], desc: str = "") -> list[CandidateFit]:
+            return self.fits
+
+    class Plugin:
+        def __init__(self, reduced: Fitted) -> None:
+            self.reduced, self.dropped = reduced, []
+
+        @staticmethod
+        def screen(current: Fitted, names: tuple[str, ...]) -> list[ScoreTest]:
+            return [ScoreTest(n, 1e4, 1e4, 1, 0.0) for n in names]
+
+        @staticmethod
+        def magnitude(m: Fitted, name: str) -> Magnitude:
+            return Magnitude(1.0, (-1.0, 3.0) if name == "hysteresis" else (0.5, 1.5), "1")
+
+        def without(self, m: Fitted, name: str, budget: float | None) -> Fitted:
+            self.dropped.append(name)
+            return self.reduced if name == "hysteresis" else model(m.effects[:-1], 1.0)   # the viscous drop test holds
+
+        @staticmethod
+        def resimulated(m: Fitted) -> Fitted:
+            return m
+
+        @staticmethod
+        def step(m: Fitted, added: str | None, score: float | None, extra: dict) -> DiagnosisStep:
+            return DiagnosisStep(added, None, None, math.nan, score, {}, extra=dict(extra))
+
+    for reduced_scale, replaced in ((1.0 / 1100.0, True), (1.0 / 20.0, False)):
+        current = model(("viscous_load",), 1.0)
+        fits = [CandidateFit("hysteresis", model(("viscous_load", "hysteresis"), 1.0 / 1000.0)),
+                CandidateFit("viscous_motor", model(("viscous_load", "viscous_motor"), 1.0 / 50.0))]
+        plugin = Plugin(model(("viscous_load",), reduced_scale))
+        search = _Search(plugin, Pool(fits), None, 3, _Say(False))
+        search._record(current, None, None, {})
+        search._accept = lambda cur, winner, fits, k: winner.model   # noqa: B023 - the winner, as accepted
+        out = search._step(current, ("hysteresis", "viscous_motor"))
+        table = search.steps[-1].candidates.set_index("candidate")
+        assert "includes 0" in table.loc["hysteresis", "why"]
+        assert table.loc["hysteresis", "drop_test_gain"] == pytest.approx(1000.0 * reduced_scale)
+        assert plugin.dropped == ["hysteresis", "viscous_motor"]
+        if replaced:
+            assert out is current and search.models[-1] is plugin.reduced
+            assert any("had stalled" in n and "better than the step's winner viscous_motor" in n for n in search.notes)
+        else:
+            assert out is fits[1].model and search.models[-1] is current and not search.notes
+
+
 def test_the_size_search_counts_chance_with_the_residuals_correlation() -> None:
     """``sizes._better``: a probe fits better only when its training cost falls by more than one residual variance
     times the size's inflation (``size_inflation``: its sandwich over its noise-only variance). On the stalled profile

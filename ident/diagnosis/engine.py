@@ -18,7 +18,10 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    effect (flexibility included) must pass: the held-back cost falls by more than ``MIN_GAIN``, a one-sided
    Diebold-Mariano test of the held-back losses gives p < ``DM_LEVEL``, the training BIC falls, its magnitude's
    95 % interval excludes 0, and the drop test holds (the model without it, refitted from the same point, predicts
-   the held-back data significantly worse). Its margin: the runner-up's held-back cost over its own.
+   the held-back data significantly worse). Its margin: the runner-up's held-back cost over its own. When a
+   candidate's gain came from refitting the rest (its drop test fails, or its size is not told from 0), the model
+   without it, refitted from there, replaces the current model if it predicts the held-back data better than the
+   current model and the step's winner: the current model had stalled, and the step is run again against it.
 6. **Converge** the accepted model (``plugin.converge``), iterate; then **backward elimination**: a named effect
    whose removal does not worsen the held-back prediction significantly only stood in for later ones, and goes.
 7. **Say how sure**: a named effect is tentative when the final model leaves the sensor's residual above its level
@@ -303,27 +306,39 @@ class _Search:
         winner, rows, reduced = self._select(current, fits, k)
         self.steps[-1].candidates = pd.DataFrame(rows)
         self._remember_unfitted(fits, k)
+        bar = current if winner is None else winner.model
+        if reduced is not None and reduced[1].held_cost < bar.held_cost:
+            self._replace(current, *reduced, winner)
+            return current
         if winner is None:
-            if reduced is not None and reduced.held_cost < current.held_cost:
-                self.models[-1] = reduced
-                self.steps[-1] = self._refreshed(reduced, self.steps[-1], "the drop test found a better-converged "
-                                                 "model without the best candidate; the candidates are compared "
-                                                 "again against it")
-                return current
             return None
         return self._accept(current, winner, fits, k)
 
+    def _replace(self, current: Fitted, name: str, reduced: Fitted, winner: CandidateFit | None) -> None:
+        """The current model gives way to ``reduced``: its own effects, refitted from ``name``'s refit with ``name``
+        dropped, predicting the held-back data better than the current model and than the step's winner (if any).
+        The current model had stalled; a candidate accepted against it would be judged by the wrong yardstick."""
+        self.models[-1] = reduced
+        beside = "" if winner is None else f", and better than the step's winner {winner.name}"
+        self.steps[-1] = self._refreshed(reduced, self.steps[-1], f"the model without {name}, refitted from its "
+                                         "refit, predicts the held-back data "
+                                         f"{current.held_cost / reduced.held_cost:.4g}x better than the model it "
+                                         f"replaces{beside}: that model had stalled; the candidates are compared "
+                                         "again against this better-converged one")
+
     def _select(self, current: Fitted, fits: list[CandidateFit], k: int
-                ) -> tuple[CandidateFit | None, list[dict[str, Any]], Fitted | None]:
-        """The accepted candidate (lowest held-back cost first), the candidate table's rows, and the model without
-        the best candidate when its drop test failed (the gain then came from a better-converged refit)."""
+                ) -> tuple[CandidateFit | None, list[dict[str, Any]], tuple[str, Fitted] | None]:
+        """The accepted candidate (lowest held-back cost first), the candidate table's rows, and (the candidate,
+        the model without it) for the first candidate whose drop test failed or whose size is not told from 0 though
+        its refit passed the rule: the gain then came from refitting the rest, and the model without it may be a
+        better-converged current model."""
         ok = sorted((f for f in fits if f.model is not None), key=lambda f: f.model.held_cost)
         rows = {f.name: _row(f, current) for f in fits}
         winner = reduced = None
         for f in ok:
-            reasons, drop = self._judge(current, f, rows[f.name])
+            reasons, drop = self._judge(current, f, rows[f.name], want_drop=reduced is None)
             if drop is not None and reduced is None:
-                reduced = drop
+                reduced = (f.name, drop)
             rows[f.name]["accepted"], rows[f.name]["why"] = not reasons, "; ".join(reasons) or "passes the rule"
             if not reasons:
                 winner = f
@@ -334,16 +349,25 @@ class _Search:
                               f"not tested: {winner.name} predicts the held-back data better" if winner else "")
         return winner, list(rows.values()), reduced
 
-    def _judge(self, current: Fitted, f: CandidateFit, row: dict[str, Any]) -> tuple[list[str], Fitted | None]:
+    def _judge(self, current: Fitted, f: CandidateFit, row: dict[str, Any], want_drop: bool = True
+               ) -> tuple[list[str], Fitted | None]:
         """Why ``f`` is not accepted (empty: it is): the statistical rule, the model's own veto, its magnitude's
-        interval, and the drop test; also the model without it when the drop test failed."""
+        interval, and the drop test; also the model without it when the drop test failed, or (``want_drop``) when
+        the refit passed the rule with a size not told from 0 (measured on a two-effect log, viscous load and an
+        exponential Stribeck: the viscous-load model had stalled at 47.5x the noise, 15x the true coefficient;
+        hysteresis of no significant size then fitted 1000x better, and so did the model without it)."""
         reasons = list(verdict(current, f.model).reasons) + ([f.veto] if f.veto else [])
         if reasons:
             return reasons, None
         mag = self.plugin.magnitude(f.model, f.name)
         if not mag.excludes_zero:
-            return [f"its magnitude's 95 % interval includes 0 ({mag.value:.3g} {mag.unit}, "
-                    f"[{mag.ci95[0]:.3g}, {mag.ci95[1]:.3g}])"], None
+            zero = [f"its magnitude's 95 % interval includes 0 ({mag.value:.3g} {mag.unit}, "
+                    f"[{mag.ci95[0]:.3g}, {mag.ci95[1]:.3g}])"]
+            if not want_drop:
+                return zero, None
+            drop = self.plugin.without(f.model, f.name, self.budget)
+            row["drop_test_gain"] = verdict(drop, f.model).gain
+            return zero, drop
         drop = self.plugin.without(f.model, f.name, self.budget)
         dv = verdict(drop, f.model)
         row["drop_test_gain"] = dv.gain
