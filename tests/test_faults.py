@@ -143,3 +143,71 @@ def test_a_bug_prints_one_line_not_a_traceback(capsys) -> None:
 def test_json_output_is_one_document(capsys) -> None:
     assert main(["resolution", "--controller", "impulse", "--pulses", "3", "--json"]) == 0
     json.loads(capsys.readouterr().out)
+
+
+
+def _overlapped(monkeypatch, module: object, name: str, call) -> bool:
+    """Replace ``module.name`` by a spy that fails, and while it runs lets another thread try to hold the working
+    directory (``kept_working_directory``); whether that thread got in while the spy still ran."""
+    import threading
+
+    from ident.common.workdir import kept_working_directory
+
+    running, got, threads = [False], [], []
+
+    def other() -> None:
+        with kept_working_directory():
+            got.append(running[0])
+
+    def spy(*args, **kwargs):
+        running[0] = True
+        threads.append(threading.Thread(target=other))
+        threads[0].start()
+        threads[0].join(0.5)   # held: the other thread gets in only once the spy has returned
+        running[0] = False
+        raise RuntimeError("spy: nothing loaded or started")
+
+    monkeypatch.setattr(module, name, spy)
+    with pytest.raises(Exception, match="spy"):
+        call()
+    threads[0].join()
+    return got == [True]
+
+
+def test_an_fmu_load_and_a_worker_start_never_overlap(monkeypatch) -> None:
+    """fmpy loads an FMU's library with the process's working directory switched into the plant's unpacked folder,
+    deleted when the plant closes; worker processes inherit the working directory. A worker started inside such a
+    load kept a deleted folder, and every FMU it loaded then failed ("[Errno 2] No such file or directory": two
+    diagnoses under load had four or five candidates of a step not fitted). Both hold ``kept_working_directory``."""
+    import dask.distributed
+    import fmpy.fmi2
+
+    from ident.model.plant import Plant
+
+    before = os.getcwd()
+    assert not _overlapped(monkeypatch, fmpy.fmi2, "FMU2Slave", Plant)
+    assert os.getcwd() == before
+
+    def start() -> None:
+        with batch.WorkerPool(2, None) as pool:
+            pool.map(abs, [-1])
+
+    assert not _overlapped(monkeypatch, dask.distributed, "LocalCluster", start)
+
+
+def test_a_failed_fmu_load_leaves_the_working_directory_where_it_was(monkeypatch) -> None:
+    """fmpy does not switch the working directory back when the library does not load; the plant's folder is then
+    deleted, and the process would be left in a folder that no longer exists."""
+    import fmpy.fmi2
+
+    from ident.model.plant import Plant, PlantError
+
+    def fails(**kwargs):
+        os.chdir(kwargs["unzipDirectory"])
+        raise OSError("spy: the library does not load")
+
+    monkeypatch.setattr(fmpy.fmi2, "FMU2Slave", fails)
+    before = os.getcwd()
+    with pytest.raises(PlantError, match="spy"):
+        Plant()
+    assert os.getcwd() == before

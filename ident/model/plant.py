@@ -20,6 +20,7 @@ import pandas as pd
 from fmu_build import variables as V
 from fmu_build.build import default_fmu_path
 
+from ..common.workdir import kept_working_directory
 from .params import DriveParams, ParameterError, check_parameter
 
 _RUNNER: ctypes.CDLL | None = None
@@ -136,12 +137,12 @@ class Plant:
         self._messages: list[str] = []
         try:
             extract(str(path), unzipdir=self._unzipdir)
+            with kept_working_directory():  # fmpy switches it to the library's folder while it loads the library
+                self._fmu = (FMU2Slave if self.fmi_version == 2 else FMU3Slave)(**kwargs)
             # loggingOn: the FMU then reports why it refuses a call (FMI 3 logs nothing at all without it).
             if self.fmi_version == 2:
-                self._fmu = FMU2Slave(**kwargs)
                 self._fmu.instantiate(callbacks=self._fmi2_callbacks(), loggingOn=True)
             else:
-                self._fmu = FMU3Slave(**kwargs)
                 self._fmu.instantiate(loggingOn=True, logMessage=self._fmi3_log)
         except Exception as exc:
             shutil.rmtree(self._unzipdir, ignore_errors=True)

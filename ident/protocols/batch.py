@@ -26,6 +26,8 @@ from typing import Any, Callable, Iterator, Sequence, TypeVar
 
 from tqdm import tqdm
 
+from ..common.workdir import kept_working_directory
+
 T = TypeVar("T")
 R = TypeVar("R")
 
@@ -187,8 +189,10 @@ def _local_client(n: int) -> Iterator[Any]:
         with dask.config.set({"temporary-directory": scratch}):
             with _signals_deferred():  # an interrupt during start-up is handled once the cluster can be shut down
                 # the workers' own warnings (e.g. tasks cancelled by an interrupt) are not the user's business
-                cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                                       local_directory=scratch, env={"TMPDIR": scratch}, silence_logs=logging.ERROR)
+                with kept_working_directory():  # the workers inherit it (``ident.common.workdir``)
+                    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                                           local_directory=scratch, env={"TMPDIR": scratch},
+                                           silence_logs=logging.ERROR)
                 client = Client(cluster)
             yield client
     finally:
@@ -302,7 +306,8 @@ class WorkerPool:
             import dask
             from dask.distributed import Client, LocalCluster
 
-            with dask.config.set({"temporary-directory": self._scratch}):
+            # the workers inherit the working directory: no FMU load may switch it meanwhile (``ident.common.workdir``)
+            with dask.config.set({"temporary-directory": self._scratch}), kept_working_directory():
                 self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                             dashboard_address=":0", local_directory=self._scratch,
                                             env={"TMPDIR": self._scratch}, silence_logs=logging.ERROR)
