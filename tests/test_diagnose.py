@@ -516,6 +516,60 @@ def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -
             assert out is fits[1].model and search.models[-1] is current and not search.notes
 
 
+def test_each_step_may_replace_its_stalled_model_twice() -> None:
+    """``_Search.run``: a step whose model gives way to a better-converged one (``_step`` returns the current model)
+    is run again, twice per step (the count starts afresh once a step names an effect); a third replacement ends the
+    forward search on the replacing model, never on the one it replaced."""
+    from ident.diagnosis.engine import _Say, _Search
+    from ident.diagnosis.result import DiagnosisStep
+
+    def model(effects: tuple[str, ...], cost: float) -> Fitted:
+        return Fitted(effects, cost, cost, np.ones(10), 10, 4 + len(effects))
+
+    class Plugin:
+        kind = "test"
+
+        @staticmethod
+        def fit_base() -> Fitted:
+            return model((), 100.0)
+
+        @staticmethod
+        def candidates(m: Fitted) -> tuple[str, ...]:
+            return ("stribeck",)
+
+        @staticmethod
+        def resimulated(m: Fitted) -> Fitted:
+            return m
+
+        @staticmethod
+        def step(m: Fitted, added: str | None, score: float | None, extra: dict) -> DiagnosisStep:
+            return DiagnosisStep(added, None, None, math.nan, score, {}, extra=dict(extra))
+
+        @staticmethod
+        def over_noise(m: Fitted) -> None:
+            return None
+
+    # per call of _step: "r" replaces the current model, "a" names an effect
+    for script, models in (("rrarr", 2), ("rrrr", 1)):
+        search = _Search(Plugin(), None, None, 5, _Say(False))
+        calls = iter(script)
+
+        def step(current: Fitted, names: tuple[str, ...]) -> Fitted | None:
+            what = next(calls, None)
+            if what == "r":
+                search.models[-1] = model(current.effects, current.train_cost / 2)
+                return current
+            if what == "a":
+                search._record(model(current.effects + (f"e{len(current.effects)}",), 1.0), "e", 2.0, {})
+                return search.models[-1]
+            return None
+
+        search._step = step
+        final = search.run()
+        assert len(search.models) == models and final is search.models[-1], script
+        assert final.train_cost == (0.25 if script == "rrarr" else 100.0 / 8), script
+
+
 def test_the_size_search_counts_chance_with_the_residuals_correlation() -> None:
     """``sizes._better``: a probe fits better only when its training cost falls by more than one residual variance
     times the size's inflation (``size_inflation``: its sandwich over its noise-only variance). On the stalled profile

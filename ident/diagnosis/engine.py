@@ -207,11 +207,11 @@ class _Search:
                 break
             if nxt is current:  # a drop test left a better-converged model in place of the current one
                 refreshed += 1
+                current = self.models[-1]
                 if refreshed > 2:
                     break
-                current = self.models[-1]
                 continue
-            current = nxt
+            current, refreshed = nxt, 0   # a step may replace its model twice; a third time ends the search there
         final = self._settle(self._backward(current))
         self._check_constancy(final)
         return final
