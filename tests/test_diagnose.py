@@ -570,6 +570,56 @@ def test_each_step_may_replace_its_stalled_model_twice() -> None:
         assert final.train_cost == (0.25 if script == "rrarr" else 100.0 / 8), script
 
 
+def test_a_name_chosen_against_a_stalled_model_is_tentative() -> None:
+    """``_Search._settle``: when a named effect's size search moves the model beyond a refinement (a stall), every
+    effect named after it was chosen by comparisons against models that had stalled along that size, and is
+    tentative, with the training cost the search removed; effects named before it keep their confidence. Measured
+    on a friction-ripple log (outside the library): asymmetric friction's search moved the final model 106 noise
+    variances and Stribeck, named after it, was confident."""
+    from ident.diagnosis.engine import _Say, _Search
+    from ident.diagnosis.result import NamedEffect
+    from ident.diagnosis.sizes import SizeSearch
+
+    class Plugin:
+        @staticmethod
+        def over_noise(model: Fitted) -> tuple[float, float]:
+            return 1.0, 1.0
+
+        @staticmethod
+        def confident_levels() -> tuple[float, float]:
+            return 1.02, 1.02
+
+        @staticmethod
+        def resimulated(m: Fitted) -> Fitted:
+            return m
+
+        @staticmethod
+        def step(m: Fitted, added: str | None, score: float | None, extra: dict):
+            from ident.diagnosis.result import DiagnosisStep
+            return DiagnosisStep(added, None, None, math.nan, score, {}, extra=dict(extra))
+
+    names = ("viscous_motor", "asymmetric_friction", "stribeck")
+    for stalled, refined in ((True, False), (False, True)):
+        search = _Search(Plugin(), None, None, 3, _Say(False))
+        search.named = [NamedEffect(n, math.nan, (math.nan, math.nan), "", "", None, None) for n in names]
+        model = Fitted(names, 34099.7, 100.0, np.ones(10), 100, 8)
+        search._record(model, "stribeck", 2.0, {})
+        moved = Fitted(names, 33993.8, 100.0, np.ones(10), 100, 8)
+
+        def fake(m: Fitted, name: str) -> SizeSearch:
+            if name == "asymmetric_friction" and m is model:
+                return SizeSearch(moved, [], "held ... stalled" if stalled else "", "" if stalled else "refined")
+            return SizeSearch(m, [])
+
+        search._search_size = fake
+        assert search._settle(model) is moved
+        doubts = {n: " ".join(search.doubts.get(n, [])) for n in names}
+        assert not doubts["viscous_motor"] and not doubts["asymmetric_friction"]
+        assert ("named against models that had stalled" in doubts["stribeck"]) == stalled, doubts
+        assert ("asymmetric_friction (named before it) lowered the training cost 106 noise variances"
+                in doubts["stribeck"]) == stalled, doubts
+
+
 def test_the_size_search_counts_chance_with_the_residuals_correlation() -> None:
     """``sizes._better``: a probe fits better only when its training cost falls by more than one residual variance
     times the size's inflation (``size_inflation``: its sandwich over its noise-only variance). On the stalled profile
