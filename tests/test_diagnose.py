@@ -444,6 +444,21 @@ def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None
         assert set(search.size_checks) == ({"stribeck", "hysteresis"} if probed else set())
 
 
+class _Recorded:
+    """What ``_Search._record`` asks of a plug-in, for the loop's tests with stand-in plug-ins: the model as it is,
+    and a bare step."""
+
+    @staticmethod
+    def resimulated(m: Fitted) -> Fitted:
+        return m
+
+    @staticmethod
+    def step(m: Fitted, added: str | None, score: float | None, extra: dict) -> object:
+        from ident.diagnosis.result import DiagnosisStep
+
+        return DiagnosisStep(added, None, None, math.nan, score, {}, extra=dict(extra))
+
+
 def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -> None:
     """``_Search._step``: a candidate whose refit passes the rule with a size not told from 0 (or fails its drop
     test) gained by refitting the rest; the model without it, refitted from there (``plugin.without``), replaces the
@@ -453,7 +468,6 @@ def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -
     size fitted 1000x better. A reduced model worse than the winner leaves the winner accepted."""
     from ident.diagnosis.engine import _Say, _Search
     from ident.diagnosis.models import CandidateFit, Magnitude
-    from ident.diagnosis.result import DiagnosisStep
     from ident.diagnosis.screening import ScoreTest
 
     rng = np.random.default_rng(11)
@@ -472,7 +486,7 @@ def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -
         def map(self, fn: object, tasks: list[tuple], desc: str = "") -> list[CandidateFit]:
             return self.fits
 
-    class Plugin:
+    class Plugin(_Recorded):
         def __init__(self, reduced: Fitted) -> None:
             self.reduced, self.dropped = reduced, []
 
@@ -487,14 +501,6 @@ def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -
         def without(self, m: Fitted, name: str, budget: float | None) -> Fitted:
             self.dropped.append(name)
             return self.reduced if name == "hysteresis" else model(m.effects[:-1], 1.0)   # the viscous drop test holds
-
-        @staticmethod
-        def resimulated(m: Fitted) -> Fitted:
-            return m
-
-        @staticmethod
-        def step(m: Fitted, added: str | None, score: float | None, extra: dict) -> DiagnosisStep:
-            return DiagnosisStep(added, None, None, math.nan, score, {}, extra=dict(extra))
 
     for reduced_scale, replaced in ((1.0 / 1100.0, True), (1.0 / 20.0, False)):
         current = model(("viscous_load",), 1.0)
@@ -521,12 +527,11 @@ def test_each_step_may_replace_its_stalled_model_twice() -> None:
     is run again, twice per step (the count starts afresh once a step names an effect); a third replacement ends the
     forward search on the replacing model, never on the one it replaced."""
     from ident.diagnosis.engine import _Say, _Search
-    from ident.diagnosis.result import DiagnosisStep
 
     def model(effects: tuple[str, ...], cost: float) -> Fitted:
         return Fitted(effects, cost, cost, np.ones(10), 10, 4 + len(effects))
 
-    class Plugin:
+    class Plugin(_Recorded):
         kind = "test"
 
         @staticmethod
@@ -536,14 +541,6 @@ def test_each_step_may_replace_its_stalled_model_twice() -> None:
         @staticmethod
         def candidates(m: Fitted) -> tuple[str, ...]:
             return ("stribeck",)
-
-        @staticmethod
-        def resimulated(m: Fitted) -> Fitted:
-            return m
-
-        @staticmethod
-        def step(m: Fitted, added: str | None, score: float | None, extra: dict) -> DiagnosisStep:
-            return DiagnosisStep(added, None, None, math.nan, score, {}, extra=dict(extra))
 
         @staticmethod
         def over_noise(m: Fitted) -> None:
@@ -580,7 +577,7 @@ def test_a_name_chosen_against_a_stalled_model_is_tentative() -> None:
     from ident.diagnosis.result import NamedEffect
     from ident.diagnosis.sizes import SizeSearch
 
-    class Plugin:
+    class Plugin(_Recorded):
         @staticmethod
         def over_noise(model: Fitted) -> tuple[float, float]:
             return 1.0, 1.0
@@ -588,15 +585,6 @@ def test_a_name_chosen_against_a_stalled_model_is_tentative() -> None:
         @staticmethod
         def confident_levels() -> tuple[float, float]:
             return 1.02, 1.02
-
-        @staticmethod
-        def resimulated(m: Fitted) -> Fitted:
-            return m
-
-        @staticmethod
-        def step(m: Fitted, added: str | None, score: float | None, extra: dict):
-            from ident.diagnosis.result import DiagnosisStep
-            return DiagnosisStep(added, None, None, math.nan, score, {}, extra=dict(extra))
 
     names = ("viscous_motor", "asymmetric_friction", "stribeck")
     for stalled, refined in ((True, False), (False, True)):
