@@ -8,7 +8,8 @@ two things must not overlap that switch:
 - the start of worker processes, which inherit the working directory. Measured: a diagnosis fits its base model
   while its Dask workers start in a background thread; a worker started inside a load kept the plant's folder as
   its working directory, the plant closed, and every FMU that worker loaded afterwards failed with "[Errno 2] No
-  such file or directory" (2 of about 40 diagnoses under load: four or five candidates of a step "not fitted").
+  such file or directory" (2 of the 781 diagnoses recorded on the benchmark machine: four or five candidates of a
+  step "not fitted").
 
 Both hold ``kept_working_directory``.
 """
