@@ -121,7 +121,7 @@ def score(case: Case, truth: dict[str, Any], diag: Any, elapsed: float) -> dict[
            "screen_first": str(screen.iloc[0].candidate) if len(screen) else None,
            "screen_first_passed": bool(screen.iloc[0].passed) if len(screen) else None,
            "snr": truth.get("snr", {}), "unexplained": [u["regime"] for u in diag.unexplained],
-           "summary": diag.summary, "not_ruled_out": diag.not_ruled_out,
+           "summary": diag.summary, "notes": diag.notes, "not_ruled_out": diag.not_ruled_out,
            "over_noise": diag.steps[-1].extra.get("residual_over_noise_load"), "magnitudes": []}
     for e in diag.effects:
         if e.name not in library:
