@@ -173,14 +173,26 @@ def _run_threads(fn: Callable[[T], R], items: list[T], n: int, progress: bool, d
     return results
 
 
+def _new_cluster(n: int, scratch: str, dashboard_address: str | None) -> Any:
+    """A local Dask cluster of ``n`` single-threaded worker processes whose scratch space (and ``TMPDIR``) is
+    ``scratch``. Started holding the working directory: the workers inherit it, and no FMU load may switch it
+    meanwhile (``ident.common.workdir``). The workers' own warnings (e.g. tasks cancelled by an interrupt) are not
+    the user's business."""
+    import logging
+
+    from dask.distributed import LocalCluster
+
+    with kept_working_directory():
+        return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=dashboard_address,
+                            local_directory=scratch, env={"TMPDIR": scratch}, silence_logs=logging.ERROR)
+
+
 @contextmanager
 def _local_client(n: int) -> Iterator[Any]:
     """A client of a new local cluster of ``n`` worker processes, shut down (and its scratch folder removed) when
     the block ends."""
-    import logging
-
     import dask
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client
 
     scratch = tempfile.mkdtemp(prefix="hdrive-workers-")
     _SCRATCH.add(scratch)   # an interrupted cluster may still write into it while it shuts down
@@ -188,11 +200,7 @@ def _local_client(n: int) -> Iterator[Any]:
     try:
         with dask.config.set({"temporary-directory": scratch}):
             with _signals_deferred():  # an interrupt during start-up is handled once the cluster can be shut down
-                # the workers' own warnings (e.g. tasks cancelled by an interrupt) are not the user's business
-                with kept_working_directory():  # the workers inherit it (``ident.common.workdir``)
-                    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                                           local_directory=scratch, env={"TMPDIR": scratch},
-                                           silence_logs=logging.ERROR)
+                cluster = _new_cluster(n, scratch, None)
                 client = Client(cluster)
             yield client
     finally:
@@ -301,16 +309,11 @@ class WorkerPool:
 
     def _start(self) -> None:
         try:
-            import logging
-
             import dask
-            from dask.distributed import Client, LocalCluster
+            from dask.distributed import Client
 
-            # the workers inherit the working directory: no FMU load may switch it meanwhile (``ident.common.workdir``)
-            with dask.config.set({"temporary-directory": self._scratch}), kept_working_directory():
-                self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                            dashboard_address=":0", local_directory=self._scratch,
-                                            env={"TMPDIR": self._scratch}, silence_logs=logging.ERROR)
+            with dask.config.set({"temporary-directory": self._scratch}):
+                self.cluster = _new_cluster(self.workers, self._scratch, ":0")
                 self.client = Client(self.cluster)
         except BaseException as exc:  # noqa: BLE001 - re-raised in the caller's thread by _ready
             self._error = exc
