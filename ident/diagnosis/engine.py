@@ -384,17 +384,15 @@ class _Search:
         if reasons:
             return reasons, None
         mag = self.plugin.magnitude(f.model, f.name)
-        if not mag.excludes_zero:
-            zero = [f"its magnitude's 95 % interval includes 0 ({mag.value:.3g} {mag.unit}, "
-                    f"[{mag.ci95[0]:.3g}, {mag.ci95[1]:.3g}])"]
-            if not want_drop:
-                return zero, None
-            drop = self.plugin.without(f.model, f.name, self.budget)
-            row["drop_test_gain"] = verdict(drop, f.model).gain
-            return zero, drop
+        zero = [] if mag.excludes_zero else [f"its magnitude's 95 % interval includes 0 ({mag.value:.3g} {mag.unit}, "
+                                              f"[{mag.ci95[0]:.3g}, {mag.ci95[1]:.3g}])"]
+        if zero and not want_drop:
+            return zero, None
         drop = self.plugin.without(f.model, f.name, self.budget)
         dv = verdict(drop, f.model)
         row["drop_test_gain"] = dv.gain
+        if zero:
+            return zero, drop
         if dv.accepted:
             return [], None
         return [f"drop test: the model without it, refitted from the same point, predicts the held-back data as "
