@@ -465,7 +465,8 @@ def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -
     current model when it predicts the held-back data better than the current model and than the step's winner, and
     the step is run again against it. Measured on a two-effect log (viscous load and an exponential Stribeck): the
     viscous-load model had stalled at 47.5x the noise and 15x the true coefficient, and hysteresis of no significant
-    size fitted 1000x better. A reduced model worse than the winner leaves the winner accepted."""
+    size fitted 1000x better. A reduced model worse than the winner leaves the winner accepted; with no winner, one
+    better than the current model by no more than ``MIN_GAIN`` (no practical gain) ends the search instead."""
     from ident.diagnosis.engine import _Say, _Search
     from ident.diagnosis.models import CandidateFit, Magnitude
     from ident.diagnosis.screening import ScoreTest
@@ -502,10 +503,11 @@ def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -
             self.dropped.append(name)
             return self.reduced if name == "hysteresis" else model(m.effects[:-1], 1.0)   # the viscous drop test holds
 
-    for reduced_scale, replaced in ((1.0 / 1100.0, True), (1.0 / 20.0, False)):
+    for rival, reduced_scale, replaced in ((True, 1.0 / 1100.0, True), (True, 1.0 / 20.0, False),
+                                           (False, 1.0 / 1.5, True), (False, 1.0 / 1.005, False)):
         current = model(("viscous_load",), 1.0)
-        fits = [CandidateFit("hysteresis", model(("viscous_load", "hysteresis"), 1.0 / 1000.0)),
-                CandidateFit("viscous_motor", model(("viscous_load", "viscous_motor"), 1.0 / 50.0))]
+        fits = [CandidateFit("hysteresis", model(("viscous_load", "hysteresis"), 1.0 / 1000.0))]
+        fits += [CandidateFit("viscous_motor", model(("viscous_load", "viscous_motor"), 1.0 / 50.0))] if rival else []
         plugin = Plugin(model(("viscous_load",), reduced_scale))
         search = _Search(plugin, Pool(fits), None, 3, _Say(False))
         search._record(current, None, None, {})
@@ -514,12 +516,13 @@ def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -
         table = search.steps[-1].candidates.set_index("candidate")
         assert "includes 0" in table.loc["hysteresis", "why"]
         assert table.loc["hysteresis", "drop_test_gain"] == pytest.approx(1000.0 * reduced_scale)
-        assert plugin.dropped == ["hysteresis", "viscous_motor"]
+        assert plugin.dropped == ["hysteresis", "viscous_motor"][:len(fits)]
         if replaced:
             assert out is current and search.models[-1] is plugin.reduced
-            assert any("had stalled" in n and "better than the step's winner viscous_motor" in n for n in search.notes)
+            assert any("had stalled" in n and ("better than the step's winner viscous_motor" in n) == rival
+                       for n in search.notes)
         else:
-            assert out is fits[1].model and search.models[-1] is current and not search.notes
+            assert out is (fits[1].model if rival else None) and search.models[-1] is current and not search.notes
 
 
 def test_each_step_may_replace_its_stalled_model_twice() -> None:

@@ -21,7 +21,8 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    the held-back data significantly worse). Its margin: the runner-up's held-back cost over its own. When a
    candidate's gain came from refitting the rest (its drop test fails, or its size is not told from 0), the model
    without it, refitted from there, replaces the current model if it predicts the held-back data better than the
-   current model and the step's winner: the current model had stalled, and the step is run again against it.
+   step's winner and by more than ``MIN_GAIN`` better than the current model: the current model had stalled, and
+   the step is run again against it.
 6. **Converge** the accepted model (``plugin.converge``), iterate; then **backward elimination**: a named effect
    whose removal does not worsen the held-back prediction significantly only stood in for later ones, and goes.
 7. **Say how sure**: a named effect is tentative when the final model leaves the sensor's residual above its level
@@ -330,8 +331,8 @@ class _Search:
         winner, rows, reduced = self._select(current, fits, k)
         self.steps[-1].candidates = pd.DataFrame(rows)
         self._remember_unfitted(fits, k)
-        bar = current if winner is None else winner.model
-        if reduced is not None and reduced[1].held_cost < bar.held_cost:
+        bar = min([current.held_cost / MIN_GAIN] + ([winner.model.held_cost] if winner else []))
+        if reduced is not None and reduced[1].held_cost < bar:
             self._replace(current, *reduced, winner)
             return current
         if winner is None:
@@ -340,8 +341,11 @@ class _Search:
 
     def _replace(self, current: Fitted, name: str, reduced: Fitted, winner: CandidateFit | None) -> None:
         """The current model gives way to ``reduced``: its own effects, refitted from ``name``'s refit with ``name``
-        dropped, predicting the held-back data better than the current model and than the step's winner (if any).
-        The current model had stalled; a candidate accepted against it would be judged by the wrong yardstick."""
+        dropped, predicting the held-back data better than the step's winner (if any) and by more than ``MIN_GAIN``
+        better than the current model (the practical significance an effect must show: measured on an actuator-lag
+        log, a step replaced its model twice for gains of 1.001x and 1.000x and ran again each time, 60-75 s, with
+        the same names). The current model had stalled; a candidate accepted against it would be judged by the wrong
+        yardstick."""
         self.models[-1] = reduced
         beside = "" if winner is None else f", and better than the step's winner {winner.name}"
         self.steps[-1] = self._refreshed(reduced, self.steps[-1], f"the model without {name}, refitted from its "
