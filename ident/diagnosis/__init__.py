@@ -8,6 +8,10 @@ Kept import-light: the command line reads the defaults below without loading Cas
 #: on 7 s training parts at 5 kHz); the budget is a count, so the answer is the same on any machine.
 DEFAULT_BUDGET = 300.0
 
+#: practical significance: a named effect must remove more than 1 % of what the model leaves in the held-back data
+#: (a ratio of two costs: the noise level's scale cancels in it)
+MIN_GAIN = 1.01
+
 #: a model whose sensor residual stays above its level times the sensor's noise (on the training or the held-back
 #: part) does not explain its log: effects it names are tentative, and where the residual sits is reported as
 #: unexplained. The level is the one a model that reproduces its log (its residual the sensor's white noise) exceeds

@@ -61,17 +61,14 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from . import CONFIDENT_OVER_NOISE, DEFAULT_BUDGET, above_level, levels_text
+from . import CONFIDENT_OVER_NOISE, DEFAULT_BUDGET, MIN_GAIN, above_level, levels_text
 from ..fitting.logs import DriveLog, LogError
 from ..protocols.batch import WorkerPool
 from .models import CandidateFit, Fitted, ModelPlugin
 from .result import Diagnosis, DiagnosisStep, NamedEffect, PublishedReference
-from .screening import SCREEN_LEVEL, ranked, screen_table
+from .screening import DETECTION_POWER, SCREEN_LEVEL, ranked, screen_table
 from .sizes import SIZE_PROBE, Checks, SizeSearch, search_candidate, search_size, widen
 
-#: practical significance: a named effect must remove more than 1 % of what the model leaves in the held-back data
-#: (a ratio of two costs: the noise level's scale cancels in it)
-MIN_GAIN = 1.01
 #: one-sided Diebold-Mariano level of the held-back losses
 DM_LEVEL = 0.01
 #: a from-scratch convergence of an accepted model may use this many candidate budgets
@@ -594,8 +591,34 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
     for e in named:
         own = reasons + search.doubts.get(e.name, [])
         e.tentative, e.why_tentative = bool(own), "; ".join(own)
-    return named, unexplained, table, _summary(named, unexplained, over, levels, search.not_ruled_out,
-                                              search.constancy)
+    return named, unexplained, table, (_summary(named, unexplained, over, levels, search.not_ruled_out,
+                                               search.constancy) + _unseen(search.steps, named))
+
+
+def _unseen(steps: list[DiagnosisStep], named: list[NamedEffect]) -> list[str]:
+    """Each effect of the last screen that is not named: why, in numbers. One that passed the screen lost at the
+    acceptance rule; one that did not is either absent or smaller than the size the loop could name there
+    (``screening.detection_limit``): this log cannot tell which."""
+    screens = [(k, s.screen) for k, s in enumerate(steps) if "detectable" in s.screen]
+    if not screens:
+        return []
+    k, table = screens[-1]
+    refits = steps[k].candidates
+    why = dict(zip(refits.candidate, refits.why)) if "why" in refits else {}
+    out = []
+    for row in table.itertuples():
+        if row.candidate in {e.name for e in named}:
+            continue
+        if row.passed:
+            out.append(f"{row.candidate} is not named: it passed the screen at step {k} (score "
+                       f"{row.lm_statistic:.4g}, p = {row.p_value:.2g}); refitted: {why.get(row.candidate, '-')}")
+        elif math.isfinite(row.detectable):
+            at = f", where the log shows it best ({row.detectable_at})" if row.detectable_at else ""
+            out.append(f"{row.candidate} is not named: this log cannot tell one below {row.detectable:.3g} "
+                       f"{row.unit} from none (at step {k}'s model, the size the screen passes with "
+                       f"{DETECTION_POWER:.0%} power and a fit of it removes the {MIN_GAIN - 1:.0%} of the cost the "
+                       f"rule asks{at})")
+    return out
 
 
 def _reasons(search: _Search, over: tuple[float, float] | None, levels: tuple[float, float]) -> list[str]:

@@ -169,6 +169,17 @@ def grid(name: str, s: LogScales) -> list[dict[str, float]]:
     return [{}]
 
 
+#: the screen's gridded coordinates in words: (what it is, its value's unit)
+GRID_WORDS = {"ln_stribeck_velocity": ("Stribeck velocity", "rad/s"),
+              "ln_saturation_deflection": ("saturation deflection", "rad")}
+
+
+def grid_words(c: Coord, x: float) -> str:
+    """A gridded coordinate at ``x`` in words, e.g. 'Stribeck velocity 0.0012 rad/s'."""
+    what, unit = GRID_WORDS.get(c.name, (c.name, ""))
+    return f"{what} {c.value(x):.3g} {unit}".rstrip()
+
+
 def stribeck_speeds(s: LogScales) -> tuple[float, float]:
     """The Stribeck velocities the screen's grid spans [rad/s]: from a tenth of the load's 5 % slip speed to its 95 %
     slip speed. The lower end is also the fits' lower bound: a decay that ends below every speed the log shows is

@@ -45,12 +45,12 @@ from ...fitting.logs import DriveLog, LogError
 from ...fitting.noise import at_noise_level, residual_noise_std
 from ...model.effects import EFFECTS
 from ...model.params import DriveParams
-from .. import CONFIDENT_ALPHA, CONFIDENT_OVER_NOISE, above_level
+from .. import CONFIDENT_ALPHA, CONFIDENT_OVER_NOISE, MIN_GAIN, above_level
 from ..result import DiagnosisStep
-from ..screening import ScoreTest, best_of_grid, partial_out, score_test
+from ..screening import ScoreTest, best_of_grid, detection_limit, partial_out, score_test
 from . import two_inertia_report as report
 from . import CandidateFit, Fitted, Magnitude, ModelPlugin
-from .coordinates import TWO_INERTIA_EFFECTS, LogScales, coordinates, fmu_values, grid, magnitude_of
+from .coordinates import TWO_INERTIA_EFFECTS, LogScales, coordinates, fmu_values, grid, grid_words, magnitude_of
 from .problem import SAME_PROPAGATOR, ModelProblem, Sensitivity, rms, simulate_full
 
 HOLDBACK_FRACTION = 0.3
@@ -202,26 +202,35 @@ class TwoInertiaPlugin(ModelPlugin):
         coordinates' values at the Gauss-Newton step) and each linear coordinate's one-sigma size
         (``sensitivity``)."""
         coords = coordinates(name, model.state.scales)
-        gridded = {k for point in grid(name, model.state.scales) for k in point}
+        points_x = grid(name, model.state.scales)
+        gridded = {k for point in points_x for k in point}
         linear = [c for c in coords if c.name not in gridded]
-        points, sizes = [], []
-        for point in grid(name, model.state.scales):
-            entry, size = self._grid_point(model, name, point, coords, linear, r, J, Q)
+        one_sided = len(linear) == 1 and linear[0].from_zero
+        points, sizes, limits = [], [], []
+        for point in points_x:
+            entry, size, limit = self._grid_point(model, name, point, coords, linear, r, J, Q,
+                                                  (len(points_x), one_sided))
             points.append(entry)
             sizes.append(size)
-        test = best_of_grid(name, points, len(linear), len(linear) == 1 and linear[0].from_zero)
+            limits.append(limit)
+        test = best_of_grid(name, points, len(linear), one_sided)
         best = next(i for i, p in enumerate(points) if p[0] == test.grid_point)
         test.start = dict(test.grid_point)
         test.sensitivity = sizes[best]
         test.grid_point = {k: v for k, v in test.start.items() if k in gridded}
         test.step = test.step[:J.shape[1]]
+        seen = int(np.argmin(limits))
+        test.detectable, test.unit = limits[seen], EFFECTS[name].unit
+        test.detectable_at = ", ".join(grid_words(c, points_x[seen][c.name]) for c in coords if c.name in gridded)
         return test
 
     def _grid_point(self, model: Fitted, name: str, point: dict[str, float], coords: tuple[Any, ...],
-                    linear: list[Any], r: np.ndarray, J: np.ndarray, Q: np.ndarray
-                    ) -> tuple[tuple[Any, ...], dict[str, float]]:
+                    linear: list[Any], r: np.ndarray, J: np.ndarray, Q: np.ndarray, grid_of: tuple[int, bool]
+                    ) -> tuple[tuple[Any, ...], dict[str, float], float]:
         """One grid point's score test: (the coordinates' values at the step, statistic, robust statistic, the
-        whole step, admissible) and the one-sigma size of each linear coordinate."""
+        whole step, admissible), the one-sigma size of each linear coordinate, and the effect's smallest size the
+        loop could name there (``screening.detection_limit``; ``grid_of``: the grid's size and whether the test is
+        one-sided)."""
         cols = [self._column(model, name, c.name, point, r) for c in linear]
         B = np.column_stack(cols)
         lm, robust, step, ok = score_test(r, Q, B, tuple(c.from_zero for c in linear))
@@ -230,7 +239,10 @@ class TwoInertiaPlugin(ModelPlugin):
         values = {**{k: by_name[k].value(v) for k, v in point.items()},
                   **{c.name: c.value(float(x)) for c, x in zip(linear, step)}}
         sizes = {c.name: c.scale * SCREEN_RESPONSE_SIGMA / max(rms(col), 1e-300) for c, col in zip(linear, cols)}
-        return (values, lm, robust, np.concatenate([base_step, step]), ok), sizes
+        at_limit = dict(zip((c.name for c in linear), detection_limit(r, Q, B, *grid_of, MIN_GAIN)))
+        x = np.array([point[c.name] if c.name in point else at_limit[c.name] for c in coords])
+        limit = magnitude_of(name, fmu_values(name, coords, x)) if np.all(np.isfinite(x)) else math.inf
+        return (values, lm, robust, np.concatenate([base_step, step]), ok), sizes, limit
 
     def _column(self, model: Fitted, name: str, coord: str, point: dict[str, float], r: np.ndarray) -> np.ndarray:
         """d(load residual)/dx of coordinate ``coord`` of effect ``name`` at 0 (the other coordinates at

@@ -1,9 +1,9 @@
 """Independent generator of randomized "measured" drive logs with known truth (no code shared with the product).
 
-Public API (see ``logs.py``): ``identification_case``, ``diagnosis_case``, ``clean_case``, ``two_effect_case``,
-``outside_library_case`` -> ``GeneratedLog`` (``.write(dir)`` in the product's file format, ``.truth``); the suites
-``IDENTIFICATION_SUITE``, ``IDENTIFICATION_SLOW_SUITE``, ``DIAGNOSIS_MATRIX``, ``CLEAN_SUITE``,
-``TWO_EFFECT_SUITE_SEEDS``, ``OUTSIDE_LIBRARY_SUITE``; the physics (``plant.py``: ``Drive``, ``Effects`` and the
+Public API (see ``logs.py``): ``identification_case``, ``diagnosis_case``, ``sized_case``, ``clean_case``,
+``two_effect_case``, ``outside_library_case`` -> ``GeneratedLog`` (``.write(dir)`` in the product's file format,
+``.truth``); the suites ``IDENTIFICATION_SUITE``, ``IDENTIFICATION_SLOW_SUITE``, ``DIAGNOSIS_MATRIX``,
+``CLEAN_SUITE``, ``TWO_EFFECT_SUITE_SEEDS``, ``OUTSIDE_LIBRARY_SUITE``; the physics (``plant.py``: ``Drive``, ``Effects`` and the
 effect shapes), the engines (``engines.py``, ``linear.py``), the excitations (``excitations.py``) and the effect
 families with their magnitude search (``effects.py``).
 """
@@ -24,6 +24,7 @@ from .logs import (
                    diagnosis_case,
                    identification_case,
                    outside_library_case,
+                   sized_case,
                    two_effect_case,
 )
 from .plant import (
@@ -67,5 +68,6 @@ __all__ = [
                    "diagnosis_case",
                    "identification_case",
                    "outside_library_case",
+                   "sized_case",
                    "two_effect_case",
 ]

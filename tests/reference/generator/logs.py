@@ -370,16 +370,19 @@ def _weak(seed: int, kind: str, duration_s: float, rate_hz: float | None, name: 
 
 
 def _generate(seed: int, scenario: str, kind: str, duration_s: float, rate_hz: float | None,
-              specs: list[tuple[str, str | None, str]]) -> GeneratedLog:
-    """The log of case ``seed`` with effects ``specs`` = [(name, variant or None, magnitude class)]."""
+              specs: list[tuple[str, str | None, str | float]]) -> GeneratedLog:
+    """The log of case ``seed`` with effects ``specs`` = [(name, variant or None, magnitude class or the
+    magnitude itself)]."""
     ctx = _context(seed, kind, duration_s, rate_hz)
     parts, truth_bits = [], {"variants": {}, "magnitudes": {}, "magnitude_classes": {}}
     for name, variant, cls in specs:
-        if cls not in CLASSES:
+        if not isinstance(cls, float) and cls not in CLASSES:
             raise ValueError(f"magnitude class {cls!r}: use one of {', '.join(CLASSES)}")
         family = _family(ctx, name, variant)
-        weak = _weak(seed, kind, duration_s, rate_hz, name, variant)[0]
-        m = min(weak * CLASSES[cls], family.cap)
+        if isinstance(cls, float):
+            m, cls = min(cls, family.cap), "given"
+        else:
+            m = min(_weak(seed, kind, duration_s, rate_hz, name, variant)[0] * CLASSES[cls], family.cap)
         parts.append(family.build(m))
         truth_bits["variants"][name] = {"variant": family.variant, **family.shape}
         truth_bits["magnitudes"][name] = [m, family.unit]
@@ -441,6 +444,18 @@ def diagnosis_case(seed: int, effect: str, magnitude_class: str, excitation: str
     if effect not in LIBRARY_EFFECTS:
         raise ValueError(f"effect {effect!r} is not a library effect; use one of {', '.join(LIBRARY_EFFECTS)}")
     return _generate(seed, "diagnosis", excitation, duration_s, rate_hz, [(effect, variant, magnitude_class)])
+
+
+def sized_case(seed: int, effect: str, magnitude: float, excitation: str = "default", variant: str | None = None,
+               duration_s: float = DEFAULT_DURATION_S, rate_hz: float | None = None) -> GeneratedLog:
+    """A log with one library effect hidden at ``magnitude`` (the effect's own unit, ``effects.py``; capped as
+    the classes are), in the same case (drive, excitation, noise) as ``diagnosis_case(seed, ...)``: to ask how small
+    an effect a tool can find."""
+    if effect not in LIBRARY_EFFECTS:
+        raise ValueError(f"effect {effect!r} is not a library effect; use one of {', '.join(LIBRARY_EFFECTS)}")
+    if not magnitude > 0:
+        raise ValueError(f"magnitude = {magnitude}: must be > 0")
+    return _generate(seed, "diagnosis", excitation, duration_s, rate_hz, [(effect, variant, float(magnitude))])
 
 
 def two_effect_case(seed: int, effects: tuple[str, str] | None = None,
