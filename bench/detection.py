@@ -5,10 +5,12 @@ For each drive (the generator's clean log of a seed below; the seeds are in no s
 the diagnosis of the clean log gives each library effect's detection limit: the sentence "E is not named: this log
 cannot tell one below X from none" (``ident.diagnosis.screening.detection_limit``). The generator then hides each
 effect at ``FACTORS`` x its limit in the same case (drive, excitation, noise: ``sized_case``), and the diagnosis runs
-on it. Above the limit the effect should be named; below it, nothing should be. Shapes: the generator's own where it
-has several (``SHAPES``: the library's shape where one of them is it); the kinematic error always carries the
-generator's 4/rev harmonic beside the 2/rev. Hardening is left out: the generator sizes it at its own log's
-deflection scale, not in the library's unit.
+on it. Above the limit the effect should be named; below it, nothing should be. Each log's own diagnosis also
+quotes the limit on that log (``own_limit``: at the last screen that tested the effect; its start and the base fit
+differ from the clean log's): an effect missed above it means the quoted limit was optimistic. Shapes: the
+generator's own where it has several (``SHAPES``: the library's shape where one of them is it); the kinematic error
+always carries the generator's 4/rev harmonic beside the 2/rev. Hardening is left out: the generator sizes it at its
+own log's deflection scale, not in the library's unit.
 
 Each diagnosed log is appended to ``--out``.jsonl as it finishes (a run can be resumed); the summary (per factor:
 the effect named, anything named, confident names) is printed and written to ``--out``.
@@ -63,7 +65,18 @@ def sized(seed: int, effect: str, factor: float, limit: float, workers: int | No
     return {"seed": seed, "effect": effect, "factor": factor, "limit": limit,
             "truth": log.truth.magnitudes[effect][0], "snr": log.truth.snr[effect], "named": named,
             "confident": [e.name for e in d.effects if not e.tentative], "right": effect in named,
-            "magnitude": mag, "elapsed_s": time.perf_counter() - t}
+            "magnitude": mag, "elapsed_s": time.perf_counter() - t, **own_limits(d, effect)}
+
+
+def own_limits(d: Any, effect: str) -> dict[str, float | None]:
+    """The hidden effect's detection limits in the log's own diagnosis: at its base model, and at the last screen
+    that tested it (best and worst grid point): what the report told the user."""
+    screens = [s.screen.set_index("candidate") for s in d.steps if len(s.screen) and effect in set(s.screen.candidate)]
+    if not screens:
+        return {"own_limit_base": None, "own_limit": None, "own_limit_worst": None}
+    first, last = screens[0].loc[effect], screens[-1].loc[effect]
+    return {"own_limit_base": float(first.detectable), "own_limit": float(last.detectable),
+            "own_limit_worst": float(last.detectable_worst)}
 
 
 def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -77,6 +90,17 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
                           "missed": sorted(f"{r['seed']}:{r['effect']}" for r in rs if not r["right"]),
                           "named_below": sorted(f"{r['seed']}:{r['effect']}:{','.join(r['named'])}"
                                                 for r in rs if r["named"])}
+    sized_rows = [r for r in rows if r["effect"] is not None and r.get("own_limit") is not None]
+    out["own_limits"] = {
+        "logs": len(sized_rows),
+        # what the report said: "cannot tell one below X"; a name below X would make X too pessimistic
+        "named_below_own_base_limit": sorted(f"{r['seed']}:{r['effect']}:{r['factor']:g}x" for r in sized_rows
+                                             if r["right"] and r["truth"] < r["own_limit_base"]),
+        # not named although above the limit where the log shows it best / least: the limit was optimistic there
+        "missed_above_own_limit": sorted(f"{r['seed']}:{r['effect']}:{r['factor']:g}x" for r in sized_rows
+                                         if not r["right"] and r["truth"] > r["own_limit"]),
+        "missed_above_own_worst_limit": sorted(f"{r['seed']}:{r['effect']}:{r['factor']:g}x" for r in sized_rows
+                                               if not r["right"] and r["truth"] > r["own_limit_worst"])}
     out["clean_named"] = [r["named"] for r in rows if r["effect"] is None and r["named"]]
     return out
 

@@ -187,6 +187,7 @@ def test_clean_log_names_nothing():
     assert any("down to the sensor noise" in s for s in d.summary) and d.unexplained == []
     # every candidate not named: the size below which this log cannot tell it from none, from the same screen
     assert (screen.detectable > 0).all() and np.isfinite(screen.detectable).all()
+    assert (screen.detectable_worst >= screen.detectable).all()
     for row in screen.itertuples():
         assert any(s.startswith(f"{row.candidate} is not named: this log cannot tell one below "
                                 f"{row.detectable:.3g} {row.unit}") for s in d.summary), row.candidate

@@ -613,7 +613,9 @@ def _unseen(steps: list[DiagnosisStep], named: list[NamedEffect]) -> list[str]:
             out.append(f"{row.candidate} is not named: it passed the screen at step {k} (score "
                        f"{row.lm_statistic:.4g}, p = {row.p_value:.2g}); refitted: {why.get(row.candidate, '-')}")
         elif math.isfinite(row.detectable):
-            at = f", where the log shows it best ({row.detectable_at})" if row.detectable_at else ""
+            at = (f", where the log shows it best ({row.detectable_at}); where it shows it least "
+                  f"({row.detectable_worst_at}) only from {row.detectable_worst:.3g} {row.unit}"
+                  if row.detectable_at else "")
             out.append(f"{row.candidate} is not named: this log cannot tell one below {row.detectable:.3g} "
                        f"{row.unit} from none (at step {k}'s model, the size the screen passes with "
                        f"{DETECTION_POWER:.0%} power and a fit of it removes the {MIN_GAIN - 1:.0%} of the cost the "

@@ -17,7 +17,8 @@ from .result import Diagnosis
 _STEP_COLUMNS = ("added", "removed", "nrmse_load", "nrmse_motor", "relative_error_pct", "heldback_nrmse_load",
                  "heldback_relative_error_pct", "train_over_noise_load", "heldback_over_noise_load", "score", "dm_p",
                  "delta_bic", "runner_up", "margin", "predicted_resolution_um")
-_SCREEN_FORMATS = {"lm_statistic": ".4g", "lm_robust": ".4g", "p_value": ".3g", "detectable": ".3g"}
+_SCREEN_FORMATS = {"lm_statistic": ".4g", "lm_robust": ".4g", "p_value": ".3g", "detectable": ".3g",
+                   "detectable_worst": ".3g"}
 _CANDIDATE_FORMATS = {"evaluations": ".1f", "heldback_gain": ".5g", "train_gain": ".5g", "delta_bic": ".1f",
                       "dm_p": ".3g", "drop_test_gain": ".5g"}
 
@@ -109,7 +110,8 @@ def _screens(diag: Diagnosis) -> list[str]:
         model = ", ".join(s.extra.get("effects", [])) or "base"
         screen = s.screen
         if "detectable" in screen and screen.detectable.isna().all():   # a model with no detection limit
-            screen = screen.drop(columns=["detectable", "unit", "detectable_at"])
+            screen = screen.drop(columns=["detectable", "unit", "detectable_at", "detectable_worst",
+                                         "detectable_worst_at"])
         lines += [f"### Step {i} (model: {model})", "", "Score test of every candidate (ranked):", "",
                   md_table(screen, _SCREEN_FORMATS), ""]
         if len(s.candidates):

@@ -81,6 +81,8 @@ class ScoreTest:
     detectable: float = math.nan     # the effect's smallest size the loop could name here (``unit``)
     unit: str = ""
     detectable_at: str = ""          # where the log sees it best (the grid point), in words
+    detectable_worst: float = math.nan   # the same at the grid point where the log sees it least
+    detectable_worst_at: str = ""
 
     @property
     def passed(self) -> bool:
@@ -91,7 +93,8 @@ class ScoreTest:
                 "df": self.df, "p_value": self.p_value, "p_robust": self.p_robust, "grid_size": self.grid_size,
                 "grid_point": ", ".join(f"{k} = {v:.4g}" for k, v in self.grid_point.items()),
                 "passed": self.passed, "detectable": self.detectable, "unit": self.unit,
-                "detectable_at": self.detectable_at, "note": self.note}
+                "detectable_at": self.detectable_at, "detectable_worst": self.detectable_worst,
+                "detectable_worst_at": self.detectable_worst_at, "note": self.note}
 
 
 def partial_out(J: np.ndarray) -> np.ndarray:

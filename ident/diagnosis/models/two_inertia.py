@@ -219,9 +219,11 @@ class TwoInertiaPlugin(ModelPlugin):
         test.sensitivity = sizes[best]
         test.grid_point = {k: v for k, v in test.start.items() if k in gridded}
         test.step = test.step[:J.shape[1]]
-        seen = int(np.argmin(limits))
-        test.detectable, test.unit = limits[seen], EFFECTS[name].unit
-        test.detectable_at = ", ".join(grid_words(c, points_x[seen][c.name]) for c in coords if c.name in gridded)
+        test.unit = EFFECTS[name].unit
+        for i, field in ((int(np.argmin(limits)), "detectable"), (int(np.argmax(limits)), "detectable_worst")):
+            setattr(test, field, limits[i])
+            setattr(test, field + "_at", ", ".join(grid_words(c, points_x[i][c.name]) for c in coords
+                                                   if c.name in gridded))
         return test
 
     def _grid_point(self, model: Fitted, name: str, point: dict[str, float], coords: tuple[Any, ...],
