@@ -88,8 +88,8 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
                           "anything_named": sum(bool(r["named"]) for r in rs),
                           "confident_named": sum(bool(r["confident"]) for r in rs),
                           "missed": sorted(f"{r['seed']}:{r['effect']}" for r in rs if not r["right"]),
-                          "named_below": sorted(f"{r['seed']}:{r['effect']}:{','.join(r['named'])}"
-                                                for r in rs if r["named"])}
+                          "named": sorted(f"{r['seed']}:{r['effect']}:{','.join(r['named'])}"
+                                          for r in rs if r["named"])}
     sized_rows = [r for r in rows if r["effect"] is not None and r.get("own_limit") is not None]
     out["own_limits"] = {
         "logs": len(sized_rows),
