@@ -23,6 +23,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from scipy import stats
 
@@ -173,6 +174,41 @@ def test_the_detection_limit_is_the_size_the_screen_passes_with_its_power_or_the
         other = np.linalg.norm(x) * np.array([np.cos(angle), np.sin(angle)])
         assert float(other @ Z.T @ Z @ other) >= seen * (1 - 1e-9)
     assert 0.92 < pass_rate(B, Q, x, False) < 0.98
+
+
+def test_each_effect_not_named_says_why_in_numbers() -> None:
+    """``engine._unseen``, from the last screen that ran: an effect that passed it but lost at the acceptance rule
+    quotes its refit's reason; one that did not pass quotes the size below which the log cannot tell it from none
+    (and, on a grid, where it shows it best and least); a named effect and one without a limit (a model that
+    computes none) get no sentence."""
+    from ident.diagnosis.engine import _unseen
+    from ident.diagnosis.result import DiagnosisStep, NamedEffect
+
+    def step(screen: list[dict], candidates: list[dict]) -> DiagnosisStep:
+        s = DiagnosisStep(None, None, None, math.nan, None, {})
+        s.screen, s.candidates = pd.DataFrame(screen), pd.DataFrame(candidates)
+        return s
+
+    row = {"lm_statistic": 1.0, "p_value": 0.5, "passed": False, "unit": "1", "detectable_at": "",
+           "detectable_worst": math.nan, "detectable_worst_at": ""}
+    old = step([{**row, "candidate": "hysteresis", "detectable": 9.0}], [])
+    last = step([{**row, "candidate": "stribeck", "detectable": 2e-6, "detectable_at": "Stribeck velocity 0.01 rad/s",
+                  "detectable_worst": 3e-5, "detectable_worst_at": "Stribeck velocity 0.001 rad/s"},
+                 {**row, "candidate": "hardening", "lm_statistic": 90.0, "p_value": 1e-20, "passed": True,
+                  "detectable": 60.0},
+                 {**row, "candidate": "viscous_load", "detectable": 1e-5},
+                 {**row, "candidate": "kinematic_error", "detectable": math.nan}],
+                [{"candidate": "hardening", "why": "held-back cost falls 1.002x, not more than 1.01x"}])
+    named = [NamedEffect("viscous_load", 1.0, (0.5, 1.5), "", "", None, None)]
+    out = _unseen([step([], []), old, last, step([], [])], named)
+    assert len(out) == 2
+    assert out[0] == ("stribeck is not named: this log cannot tell one below 2e-06 1 from none (at step 2's model, "
+                      "the size the screen passes with 95% power and a fit of it removes the 1% of the cost the rule "
+                      "asks, where the log shows it best (Stribeck velocity 0.01 rad/s); where it shows it least "
+                      "(Stribeck velocity 0.001 rad/s) only from 3e-05 1)")
+    assert out[1] == ("hardening is not named: it passed the screen at step 2 (score 90, p = 1e-20); refitted: "
+                      "held-back cost falls 1.002x, not more than 1.01x")
+    assert _unseen([step([], [])], []) == []
 
 
 def test_clean_log_names_nothing():
