@@ -190,10 +190,11 @@ def test_each_effect_not_named_says_why_in_numbers() -> None:
         return s
 
     row = {"lm_statistic": 1.0, "p_value": 0.5, "passed": False, "unit": "1", "detectable_at": "",
-           "detectable_worst": math.nan, "detectable_worst_at": ""}
+           "detectable_worst": math.nan, "detectable_worst_at": "", "record": ""}
     old = step([{**row, "candidate": "hysteresis", "detectable": 9.0}], [])
     last = step([{**row, "candidate": "stribeck", "detectable": 2e-6, "detectable_at": "Stribeck velocity 0.01 rad/s",
-                  "detectable_worst": 3e-5, "detectable_worst_at": "Stribeck velocity 0.001 rad/s"},
+                  "detectable_worst": 3e-5, "detectable_worst_at": "Stribeck velocity 0.001 rad/s",
+                  "record": "slower slides"},
                  {**row, "candidate": "hardening", "lm_statistic": 90.0, "p_value": 1e-20, "passed": True,
                   "detectable": 60.0},
                  {**row, "candidate": "viscous_load", "detectable": 1e-5},
@@ -205,7 +206,8 @@ def test_each_effect_not_named_says_why_in_numbers() -> None:
     assert out[0] == ("stribeck is not named: this log cannot tell one below 2e-06 1 from none (at step 2's model, "
                       "the size the screen passes with 95% power and a fit of it removes the 1% of the cost the rule "
                       "asks, where the log shows it best (Stribeck velocity 0.01 rad/s); where it shows it least "
-                      "(Stribeck velocity 0.001 rad/s) only from 3e-05 1)")
+                      "(Stribeck velocity 0.001 rad/s) only from 3e-05 1); to see a smaller one, record slower "
+                      "slides")
     assert out[1] == ("hardening is not named: it passed the screen at step 2 (score 90, p = 1e-20); refitted: "
                       "held-back cost falls 1.002x, not more than 1.01x")
     assert _unseen([step([], [])], []) == []
@@ -224,6 +226,9 @@ def test_clean_log_names_nothing():
     # every candidate not named: the size below which this log cannot tell it from none, from the same screen
     assert (screen.detectable > 0).all() and np.isfinite(screen.detectable).all()
     assert (screen.detectable_worst >= screen.detectable).all()
+    # and what a log would have to show for a smaller one, with this log's own numbers
+    ke = screen.set_index("candidate").loc["kinematic_error", "record"]
+    assert "motor turned through" in ke and "pi rad" in ke
     for row in screen.itertuples():
         assert any(s.startswith(f"{row.candidate} is not named: this log cannot tell one below "
                                 f"{row.detectable:.3g} {row.unit}") for s in d.summary), row.candidate

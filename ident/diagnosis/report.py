@@ -112,6 +112,7 @@ def _screens(diag: Diagnosis) -> list[str]:
         if "detectable" in screen and screen.detectable.isna().all():   # a model with no detection limit
             screen = screen.drop(columns=["detectable", "unit", "detectable_at", "detectable_worst",
                                          "detectable_worst_at"])
+        screen = screen.drop(columns=["record"], errors="ignore")   # said in the conclusions
         lines += [f"### Step {i} (model: {model})", "", "Score test of every candidate (ranked):", "",
                   md_table(screen, _SCREEN_FORMATS), ""]
         if len(s.candidates):

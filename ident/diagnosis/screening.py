@@ -89,6 +89,7 @@ class ScoreTest:
     detectable_at: str = ""          # where the log sees it best (the grid point), in words
     detectable_worst: float = math.nan   # the same at the grid point where the log sees it least
     detectable_worst_at: str = ""
+    record: str = ""                 # what a log would have to show for a smaller one to be seen
 
     @property
     def passed(self) -> bool:
@@ -100,7 +101,7 @@ class ScoreTest:
                 "grid_point": ", ".join(f"{k} = {v:.4g}" for k, v in self.grid_point.items()),
                 "passed": self.passed, "detectable": self.detectable, "unit": self.unit,
                 "detectable_at": self.detectable_at, "detectable_worst": self.detectable_worst,
-                "detectable_worst_at": self.detectable_worst_at, "note": self.note}
+                "detectable_worst_at": self.detectable_worst_at, "record": self.record, "note": self.note}
 
 
 def partial_out(J: np.ndarray) -> np.ndarray:

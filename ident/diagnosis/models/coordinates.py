@@ -180,6 +180,26 @@ def grid_words(c: Coord, x: float) -> str:
     return f"{what} {c.value(x):.3g} {unit}".rstrip()
 
 
+def record_advice(name: str, s: LogScales, motor_span: float) -> str:
+    """What a log would have to show for a smaller effect ``name`` to be seen, with what this one shows
+    (``motor_span``: how far the motor turned over the training part [rad])."""
+    p5, p95 = s.v_l_percentiles[0], s.v_l_percentiles[-1]
+    return {
+        "viscous_motor": f"faster motor slides (its median slip speed here: {s.v_m:.3g} rad/s): the viscous torque "
+                         "grows with speed",
+        "viscous_load": f"faster load slides (its median slip speed here: {s.v_l:.3g} rad/s)",
+        "stribeck": f"slides that pass slowly through the speeds where static friction gives way (the load's slip "
+                    f"speeds here: {p5:.3g} to {p95:.3g} rad/s, 5 to 95 %)",
+        "asymmetric_friction": "moves in both directions at the same speeds",
+        "hardening": f"larger deflections (95 % of them stay below {s.d95:.3g} rad here): the stiffening grows with "
+                     "the deflection squared",
+        "hysteresis": f"reversals of the spring's twist well beyond its deflection scale here ({s.d95:.3g} rad)",
+        "kinematic_error": f"a motor move over at least one period of the error (pi rad of motor angle; the motor "
+                           f"turned through {motor_span:.3g} rad here): over a shorter arc it looks like an encoder "
+                           "offset and a gear-ratio error",
+    }.get(name, "")
+
+
 def stribeck_speeds(s: LogScales) -> tuple[float, float]:
     """The Stribeck velocities the screen's grid spans [rad/s]: from a tenth of the load's 5 % slip speed to its 95 %
     slip speed. The lower end is also the fits' lower bound: a decay that ends below every speed the log shows is

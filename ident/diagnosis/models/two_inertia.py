@@ -50,7 +50,16 @@ from ..result import DiagnosisStep
 from ..screening import ScoreTest, best_of_grid, detection_limit, partial_out, score_test
 from . import two_inertia_report as report
 from . import CandidateFit, Fitted, Magnitude, ModelPlugin
-from .coordinates import TWO_INERTIA_EFFECTS, LogScales, coordinates, fmu_values, grid, grid_words, magnitude_of
+from .coordinates import (
+    TWO_INERTIA_EFFECTS,
+    LogScales,
+    coordinates,
+    fmu_values,
+    grid,
+    grid_words,
+    magnitude_of,
+    record_advice,
+)
 from .problem import SAME_PROPAGATOR, ModelProblem, Sensitivity, rms, simulate_full
 
 HOLDBACK_FRACTION = 0.3
@@ -103,6 +112,7 @@ class TwoInertiaPlugin(ModelPlugin):
         if unknown:
             raise ValueError(f"unknown effect(s) {unknown}; the two-inertia library has {', '.join(TWO_INERTIA_EFFECTS)}")
         self.full, self.stop = split_training(log, holdout)
+        self.motor_span = float(np.ptp(self.full.motor_pos_rad[:self.stop]))   # how far the motor turned [rad]
         self.start = start
         self.names = tuple(n for n in names if n != FLEXIBILITY)
         self.sigma = math.nan   # the load sensor's noise: the identifier's one estimate, set by fit_base
@@ -220,6 +230,7 @@ class TwoInertiaPlugin(ModelPlugin):
         test.grid_point = {k: v for k, v in test.start.items() if k in gridded}
         test.step = test.step[:J.shape[1]]
         test.unit = EFFECTS[name].unit
+        test.record = record_advice(name, model.state.scales, self.motor_span)
         for i, field in ((int(np.argmin(limits)), "detectable"), (int(np.argmax(limits)), "detectable_worst")):
             setattr(test, field, limits[i])
             setattr(test, field + "_at", ", ".join(grid_words(c, points_x[i][c.name]) for c in coords
