@@ -66,10 +66,13 @@ def test_emps_names_viscous_then_asymmetric(emps):
     hb = [s.extra["heldback_relative_error_pct"] for s in d.steps]
     assert tr[0] > 10 and tr == sorted(tr, reverse=True) and hb == sorted(hb, reverse=True)
     assert d.steps[1].score > 5 and 1.1 < d.steps[2].score < 1.5
-    # stribeck is screened at every step and never named (its score points to a negative ratio on this log)
+    # stribeck is screened at every step and never named: its first-order step points to a negative ratio on this
+    # log, its score is significant, so it is refitted, and its refit lands on s = 0
     for st in d.steps:
         row = st.screen[st.screen.candidate == "stribeck"]
-        assert len(row) == 1 and not row.passed.iloc[0] and row.note.iloc[0]
+        assert len(row) == 1 and row.passed.iloc[0] and "cannot take" in row.note.iloc[0]
+    refit = d.steps[-1].candidates.set_index("candidate").loc["stribeck"]
+    assert not refit.accepted and "at a bound of their search (s = 0" in refit.why
 
 
 @needs_data
@@ -144,15 +147,17 @@ def test_emps_fitted_fmu_is_the_one_body_drive(emps):
     assert one_body_drive is not None
 
 
-def _inverse_dynamics_log(b: float, n: int = 16000, fs: float = 1000.0, seed: int = 0) -> DriveLog:
-    """A rotary log whose torque is the library's rigid force on a smooth sliding trajectory (no plant needed)."""
+def _inverse_dynamics_log(b: float, n: int = 16000, fs: float = 1000.0, seed: int = 0, **stribeck: float) -> DriveLog:
+    """A rotary log whose torque is the library's rigid force on a smooth sliding trajectory (no plant needed);
+    ``stribeck``: its ``stribeck_ratio`` and ``stribeck_velocity``."""
     rng = np.random.default_rng(seed)
     t = np.arange(n) / fs
     q = 2.0 * np.sin(2 * np.pi * 0.5 * t) + 0.5 * np.sin(2 * np.pi * 1.3 * t + 0.4)
     v = np.gradient(q, 1 / fs)
     a = np.gradient(v, 1 / fs)
     A, V = ca.SX.sym("a"), ca.SX.sym("v")
-    f = ca.Function("f", [A, V], [rigid_force(A, V, {"M": 2e-3, "Fc": 0.05, "Fv": b, "offset": 0.01})]).map(n)
+    theta = {"M": 2e-3, "Fc": 0.05, "Fv": b, "offset": 0.01, **stribeck}
+    f = ca.Function("f", [A, V], [rigid_force(A, V, theta)]).map(n)
     tau = np.asarray(f(a[None, :], v[None, :])).ravel() + 0.002 * rng.standard_normal(n)
     meta = LogMeta(r=1.0, J_m_kgm2=None, f_m_Nm=None, arm_length_m=1.0, encoder_counts_per_rev=None,
                    sample_rate_hz=fs)
@@ -170,11 +175,37 @@ def test_synthetic_hidden_viscous_is_named(tmp_path):
     assert d.steps[1].relative_error_pct < 0.5 * d.steps[0].relative_error_pct
 
 
+def test_synthetic_hidden_stribeck_is_named_with_its_ratio():
+    """A Stribeck term at speeds the rigid regression keeps (v_s = 3 rad/s: IDIM-LS drops the slowest rows) is named
+    with its ratio inside its interval, and the viscous level beside it too. Before, the force function of a
+    Stribeck spec was cached under its coordinates alone and served the one without the term: the Stribeck column
+    was zero, it was never named, and the viscous level came out 40 % low."""
+    d = diagnose_rigid(_inverse_dynamics_log(b=4e-3, stribeck_ratio=0.5, stribeck_velocity=3.0))
+    named = {e.name: e for e in d.effects}
+    assert set(named) == {"viscous_motor", "stribeck"}
+    assert named["stribeck"].ci95[0] < 0.5 < named["stribeck"].ci95[1]
+    assert named["viscous_motor"].ci95[0] < 4e-3 < named["viscous_motor"].ci95[1]
+
+
 def test_synthetic_without_hidden_effect_adds_nothing():
     d = diagnose_rigid(_inverse_dynamics_log(b=0.0, seed=1))
     assert [s.added for s in d.steps] == [None]
     assert d.effects == []
     assert d.unexplained == []   # no false structure on a log the model fits exactly
+
+
+def test_a_viscous_friction_is_named_above_the_limit_a_log_without_one_quotes():
+    """The rigid force is linear in the viscous level, so the limit a log without one quotes ("cannot tell one below
+    X") is where one starts to be named: the same trajectory and noise with a viscous term of 3x the limit names it,
+    with 0.3x nothing is named. The Stribeck ratio gets a limit at its best and worst velocity of the grid."""
+    d = diagnose_rigid(_inverse_dynamics_log(b=0.0, seed=1))
+    screen = d.steps[0].screen.set_index("candidate")
+    limit = float(screen.loc["viscous_motor", "detectable"])
+    assert limit > 0 and any(s.startswith(f"viscous_motor is not named: this log cannot tell one below {limit:.3g} "
+                                          "N.m.s/rad") for s in d.summary)
+    assert 0 < screen.loc["stribeck", "detectable"] <= screen.loc["stribeck", "detectable_worst"]
+    for factor, named in ((0.3, []), (3.0, ["viscous_motor"])):
+        assert [e.name for e in diagnose_rigid(_inverse_dynamics_log(b=factor * limit, seed=1)).effects] == named
 
 
 def test_log_that_does_not_move_is_refused():

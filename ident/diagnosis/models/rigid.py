@@ -24,7 +24,8 @@ import pandas as pd
 from ...fitting.logs import DriveLog, LogError
 from ...fitting.rigid import generic_idim_settings, identify_rigid
 from ..result import DiagnosisStep, PublishedReference
-from ..screening import ScoreTest, best_of_grid, partial_out, score_test
+from .. import MIN_GAIN
+from ..screening import ScoreTest, best_of_grid, detection_limit, partial_out, score_test
 from . import CandidateFit, Fitted, Magnitude, ModelPlugin
 from . import rigid_residuals as residuals
 from .rigid_idim import RIGID_EFFECTS, Z95, RigidModelFit, Spec, columns, fit_spec, magnitude_of_fit, process_log
@@ -107,17 +108,38 @@ class RigidPlugin(ModelPlugin):
         return [self._score(fit, name, Q) for name in names]
 
     def _score(self, fit: RigidModelFit, name: str, Q: np.ndarray) -> ScoreTest:
+        """The score test of ``name``, with its detection limit where it has one coordinate in the magnitude's unit
+        (the force is linear in it, so the limit is exact to first order): the viscous level (one for both
+        directions) and the Stribeck ratio at each velocity of the grid. The asymmetry has none: its magnitude is a
+        ratio of two coordinates."""
         spec = fit.spec.add(name)
         r = -fit.e  # the loop's residual convention: model - data
         if name == "stribeck":
             v99 = float(np.percentile(np.abs(self.p.v[self.p.keep]), 99))
-            points = []
-            for vs in np.geomspace(1e-3 * v99, 0.5 * v99, STRIBECK_SCREEN):
+            points, limits = [], []
+            speeds = np.geomspace(1e-3 * v99, 0.5 * v99, STRIBECK_SCREEN)
+            for vs in speeds:
                 col = (columns(spec, self.p, 1.0, vs) - columns(spec, self.p, 0.0, vs)) @ fit.beta
                 lm, robust, step, ok = score_test(r, Q, col[:, None], (True,))
                 points.append(({"stribeck_velocity": float(vs)}, lm, robust, step, ok))
-            return best_of_grid(name, points, 1, True)
+                limits.append(float(detection_limit(r, Q, col[:, None], STRIBECK_SCREEN, True, MIN_GAIN)[0]))
+            test = best_of_grid(name, points, 1, True)
+            test.unit = self.units[name]
+            for i, field in ((int(np.argmin(limits)), "detectable"), (int(np.argmax(limits)), "detectable_worst")):
+                setattr(test, field, limits[i])
+                setattr(test, field + "_at", f"Stribeck velocity {speeds[i]:.3g} {self.unit_v}")
+            return test
         B = columns(spec, self.p, fit.s, fit.vs)
+        test = self._score_columns(name, r, Q, B)
+        if name == "viscous_motor":
+            level = B[:, [i for i, c in enumerate(spec.coords()) if c.startswith("Fv")]].sum(axis=1)
+            test.detectable = float(detection_limit(r, Q, level[:, None], 1, True, MIN_GAIN)[0])
+            test.unit = self.units[name]
+        return test
+
+    @staticmethod
+    def _score_columns(name: str, r: np.ndarray, Q: np.ndarray, B: np.ndarray) -> ScoreTest:
+        """The score test of the directions ``B`` adds to the current model."""
         Z = B - Q @ (Q.T @ B)
         U, sv, _ = np.linalg.svd(Z, full_matrices=False)
         new = U[:, sv > 1e-8 * max(float(np.linalg.norm(B)), 1e-300)] if sv.size else U

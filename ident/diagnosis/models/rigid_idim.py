@@ -161,12 +161,16 @@ def library_theta(spec: Spec, b: dict[str, Any], v: Any, s: Any, vs: Any) -> dic
 
 
 def force_function(spec: Spec) -> ca.Function:
-    """(a, v, coords, s, v_s) -> (force, d force / d coords) from ``ident.model.effects.rigid_force`` (SX)."""
-    key = tuple(spec.coords())
+    """(a, v, coords, s, v_s) -> (force, d force / d coords) from ``ident.model.effects.rigid_force`` (SX). Cached
+    per spec: its coordinates and whether it has the Stribeck term (whose s and v_s are arguments, not coordinates:
+    a key of the coordinates alone served a Stribeck spec the function without the term, and its screen column was
+    zero)."""
+    coords = tuple(spec.coords())
+    key = coords + (("stribeck",) if spec.stribeck else ())
     if key not in FUNCTIONS:
         a, v, s, vs = ca.SX.sym("a"), ca.SX.sym("v"), ca.SX.sym("s"), ca.SX.sym("vs")
-        beta = ca.SX.sym("beta", len(key))
-        b = {n: beta[i] for i, n in enumerate(key)}
+        beta = ca.SX.sym("beta", len(coords))
+        b = {n: beta[i] for i, n in enumerate(coords)}
         f = rigid_force(a, v, library_theta(spec, b, v, s, vs))
         FUNCTIONS[key] = ca.Function("rigid_" + "_".join(key), [a, v, beta, s, vs], [f, ca.jacobian(f, beta).T])
     return FUNCTIONS[key]
