@@ -167,6 +167,15 @@ def detection_limit(r: np.ndarray, Q: np.ndarray, B: np.ndarray, grid_size: int,
     return u * math.sqrt(removed / info[0])
 
 
+def quote_limits(test: ScoreTest, limits: list[float], where: list[str], unit: str) -> None:
+    """Give ``test`` its detection limits from one per grid point (``where``: each point in words, '' without a
+    grid): the smallest, where the log sees the effect best, and the largest, where it sees it least."""
+    best, worst = int(np.argmin(limits)), int(np.argmax(limits))
+    test.unit = unit
+    test.detectable, test.detectable_at = limits[best], where[best]
+    test.detectable_worst, test.detectable_worst_at = limits[worst], where[worst]
+
+
 def p_value(statistic: float, df: int, admissible: bool, one_sided: bool) -> float:
     """Chi-square tail of a statistic; a boundary null (one bounded unknown) halves it, an inadmissible step
     gives 1."""

@@ -25,7 +25,7 @@ from ...fitting.logs import DriveLog, LogError
 from ...fitting.rigid import generic_idim_settings, identify_rigid
 from ..result import DiagnosisStep, PublishedReference
 from .. import MIN_GAIN
-from ..screening import ScoreTest, best_of_grid, detection_limit, partial_out, score_test
+from ..screening import ScoreTest, best_of_grid, detection_limit, partial_out, quote_limits, score_test
 from . import CandidateFit, Fitted, Magnitude, ModelPlugin
 from . import rigid_residuals as residuals
 from .rigid_idim import RIGID_EFFECTS, Z95, RigidModelFit, Spec, columns, fit_spec, magnitude_of_fit, process_log
@@ -124,17 +124,15 @@ class RigidPlugin(ModelPlugin):
                 points.append(({"stribeck_velocity": float(vs)}, lm, robust, step, ok))
                 limits.append(float(detection_limit(r, Q, col[:, None], STRIBECK_SCREEN, True, MIN_GAIN)[0]))
             test = best_of_grid(name, points, 1, True)
-            test.unit = self.units[name]
-            for i, field in ((int(np.argmin(limits)), "detectable"), (int(np.argmax(limits)), "detectable_worst")):
-                setattr(test, field, limits[i])
-                setattr(test, field + "_at", f"Stribeck velocity {speeds[i]:.3g} {self.unit_v}")
+            quote_limits(test, limits, [f"Stribeck velocity {vs:.3g} {self.unit_v}" for vs in speeds],
+                         self.units[name])
             return test
         B = columns(spec, self.p, fit.s, fit.vs)
         test = self._score_columns(name, r, Q, B)
         if name == "viscous_motor":
             level = B[:, [i for i, c in enumerate(spec.coords()) if c.startswith("Fv")]].sum(axis=1)
-            test.detectable = float(detection_limit(r, Q, level[:, None], 1, True, MIN_GAIN)[0])
-            test.unit = self.units[name]
+            quote_limits(test, [float(detection_limit(r, Q, level[:, None], 1, True, MIN_GAIN)[0])], [""],
+                         self.units[name])
         return test
 
     @staticmethod

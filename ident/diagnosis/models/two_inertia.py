@@ -47,7 +47,7 @@ from ...model.effects import EFFECTS
 from ...model.params import DriveParams
 from .. import CONFIDENT_ALPHA, CONFIDENT_OVER_NOISE, MIN_GAIN, above_level
 from ..result import DiagnosisStep
-from ..screening import ScoreTest, best_of_grid, detection_limit, partial_out, score_test
+from ..screening import ScoreTest, best_of_grid, detection_limit, partial_out, quote_limits, score_test
 from . import two_inertia_report as report
 from . import CandidateFit, Fitted, Magnitude, ModelPlugin
 from .coordinates import (
@@ -229,12 +229,9 @@ class TwoInertiaPlugin(ModelPlugin):
         test.sensitivity = sizes[best]
         test.grid_point = {k: v for k, v in test.start.items() if k in gridded}
         test.step = test.step[:J.shape[1]]
-        test.unit = EFFECTS[name].unit
         test.record = record_advice(name, model.state.scales, self.motor_span)
-        for i, field in ((int(np.argmin(limits)), "detectable"), (int(np.argmax(limits)), "detectable_worst")):
-            setattr(test, field, limits[i])
-            setattr(test, field + "_at", ", ".join(grid_words(c, points_x[i][c.name]) for c in coords
-                                                   if c.name in gridded))
+        quote_limits(test, limits, [", ".join(grid_words(c, p[c.name]) for c in coords if c.name in gridded)
+                                    for p in points_x], EFFECTS[name].unit)
         return test
 
     def _grid_point(self, model: Fitted, name: str, point: dict[str, float], coords: tuple[Any, ...],
