@@ -40,18 +40,18 @@ SHAPES = {"viscous_motor": None, "viscous_load": None, "stribeck": "gaussian", "
 DURATION_S, RATE_HZ = 10.0, 5000.0
 
 
-def limits_of(seed: int, workers: int | None) -> tuple[dict[str, float], dict[str, Any]]:
-    """Each effect's detection limit on the clean log of ``seed`` (library units), read from the diagnosis's own
-    screen table, and the clean diagnosis's row."""
+def limits_of(seed: int, workers: int | None) -> dict[str, Any]:
+    """The clean log's row: each effect's detection limit on the clean log of ``seed`` (``limits``, library units),
+    read from the diagnosis's own screen table."""
     log = generator.clean_case(seed, duration_s=DURATION_S, rate_hz=RATE_HZ)
     t = time.perf_counter()
     d = diagnose(read_back(log), export_fmu=False, resolution_pulses=0, workers=workers)
     screen = d.steps[-1].screen if len(d.steps[-1].screen) else d.steps[0].screen
-    limits = {r.candidate: float(r.detectable) for r in screen.itertuples()}
     row = {"seed": seed, "effect": None, "factor": None, "named": [e.name for e in d.effects],
-           "limits": limits, "elapsed_s": time.perf_counter() - t,
+           "limits": {r.candidate: float(r.detectable) for r in screen.itertuples()},
+           "elapsed_s": time.perf_counter() - t,
            "summary": [s for s in d.summary if "is not named" in s]}
-    return limits, row
+    return row
 
 
 def sized(seed: int, effect: str, factor: float, limit: float, workers: int | None) -> dict[str, Any]:
@@ -126,7 +126,7 @@ def main() -> int:
                 if not any(r["seed"] == seed and r["effect"] == e and r["factor"] == k for r in rows)]
         if clean is None:
             print(f"seed {seed}: diagnosing the clean log for its limits ...", file=sys.stderr, flush=True)
-            _, clean = limits_of(seed, args.workers)
+            clean = limits_of(seed, args.workers)
             rows.append(clean)
             with lines.open("a") as f:
                 f.write(json.dumps(clean) + "\n")

@@ -605,9 +605,9 @@ def _unseen(steps: list[DiagnosisStep], named: list[NamedEffect]) -> list[str]:
     k, table = screens[-1]
     refits = steps[k].candidates
     why = dict(zip(refits.candidate, refits.why)) if "why" in refits else {}
-    out = []
+    names, out = {e.name for e in named}, []
     for row in table.itertuples():
-        if row.candidate in {e.name for e in named}:
+        if row.candidate in names:
             continue
         if row.passed:
             out.append(f"{row.candidate} is not named: it passed the screen at step {k} (score "
@@ -616,7 +616,7 @@ def _unseen(steps: list[DiagnosisStep], named: list[NamedEffect]) -> list[str]:
             at = (f", where the log shows it best ({row.detectable_at}); where it shows it least "
                   f"({row.detectable_worst_at}) only from {row.detectable_worst:.3g} {row.unit}"
                   if row.detectable_at else "")
-            record = f"; to see a smaller one, record {row.record}" if getattr(row, "record", "") else ""
+            record = f"; to see a smaller one, record {row.record}" if row.record else ""
             out.append(f"{row.candidate} is not named: this log cannot tell one below {row.detectable:.3g} "
                        f"{row.unit} from none (at step {k}'s model, the size the screen passes with "
                        f"{DETECTION_POWER:.0%} power and a fit of it removes the {MIN_GAIN - 1:.0%} of the cost the "

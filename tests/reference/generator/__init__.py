@@ -3,9 +3,9 @@
 Public API (see ``logs.py``): ``identification_case``, ``diagnosis_case``, ``sized_case``, ``clean_case``,
 ``two_effect_case``, ``outside_library_case`` -> ``GeneratedLog`` (``.write(dir)`` in the product's file format,
 ``.truth``); the suites ``IDENTIFICATION_SUITE``, ``IDENTIFICATION_SLOW_SUITE``, ``DIAGNOSIS_MATRIX``,
-``CLEAN_SUITE``, ``TWO_EFFECT_SUITE_SEEDS``, ``OUTSIDE_LIBRARY_SUITE``; the physics (``plant.py``: ``Drive``, ``Effects`` and the
-effect shapes), the engines (``engines.py``, ``linear.py``), the excitations (``excitations.py``) and the effect
-families with their magnitude search (``effects.py``).
+``CLEAN_SUITE``, ``TWO_EFFECT_SUITE_SEEDS``, ``OUTSIDE_LIBRARY_SUITE``; the physics (``plant.py``: ``Drive``,
+``Effects`` and the effect shapes), the engines (``engines.py``, ``linear.py``), the excitations
+(``excitations.py``) and the effect families with their magnitude search (``effects.py``).
 """
 from .effects import CLASSES, LIBRARY_EFFECTS, OUTSIDE_LIBRARY_EFFECTS, VARIANTS
 from .logs import (

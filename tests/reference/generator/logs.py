@@ -437,12 +437,16 @@ def clean_case(seed: int, excitation: str = "default", duration_s: float = DEFAU
     return _generate(seed, "clean", excitation, duration_s, rate_hz, [])
 
 
+def _library_effect(effect: str) -> None:
+    if effect not in LIBRARY_EFFECTS:
+        raise ValueError(f"effect {effect!r} is not a library effect; use one of {', '.join(LIBRARY_EFFECTS)}")
+
+
 def diagnosis_case(seed: int, effect: str, magnitude_class: str, excitation: str = "default",
                    duration_s: float = DEFAULT_DURATION_S, variant: str | None = None,
                    rate_hz: float | None = None) -> GeneratedLog:
     """A log with one library effect hidden at ``magnitude_class`` (weak / medium / strong)."""
-    if effect not in LIBRARY_EFFECTS:
-        raise ValueError(f"effect {effect!r} is not a library effect; use one of {', '.join(LIBRARY_EFFECTS)}")
+    _library_effect(effect)
     return _generate(seed, "diagnosis", excitation, duration_s, rate_hz, [(effect, variant, magnitude_class)])
 
 
@@ -451,8 +455,7 @@ def sized_case(seed: int, effect: str, magnitude: float, excitation: str = "defa
     """A log with one library effect hidden at ``magnitude`` (the effect's own unit, ``effects.py``; capped as
     the classes are), in the same case (drive, excitation, noise) as ``diagnosis_case(seed, ...)``: to ask how small
     an effect a tool can find."""
-    if effect not in LIBRARY_EFFECTS:
-        raise ValueError(f"effect {effect!r} is not a library effect; use one of {', '.join(LIBRARY_EFFECTS)}")
+    _library_effect(effect)
     if not magnitude > 0:
         raise ValueError(f"magnitude = {magnitude}: must be > 0")
     return _generate(seed, "diagnosis", excitation, duration_s, rate_hz, [(effect, variant, float(magnitude))])
