@@ -74,7 +74,7 @@ VARIABLES: tuple[Variable, ...] = (
     _out("arm_position", 48, "m", "Arm tip position arm_length * q_l"),
     _out("input_work", 49, "J", "Work done by the motor torque since the start (exact per segment)"),
     _out("friction_work", 50, "J", "Energy dissipated by friction since the start (exact per segment)"),
-    _out("deflection", 51, "rad", "Spring deflection d = r q_m + kinematic_error sin(2 q_m + phase) - q_l (load side)"),
+    _out("deflection", 51, "rad", "Spring deflection d = r q_m + e(q_m) - q_l (load side), e the kinematic error"),
     _out("hysteresis_state", 52, "N.m", "Torque z of the Dahl hysteresis element (0 when hysteresis_torque = 0)"),
     _out("motor_friction_torque", 53, "N.m",
          "Friction torque F_m on the motor (J_m v_m' = T - g tau_s - F_m); while stuck, the holding reaction"),
@@ -95,10 +95,14 @@ VARIABLES: tuple[Variable, ...] = (
            "Saturation torque H of a Dahl hysteresis element in parallel with the spring (0 = off)"),
     _param("hysteresis_stiffness", 107, 1.0e4, 1e-3, 1e15, "N.m/rad", "Initial stiffness sigma of the Dahl element"),
     _param("kinematic_error", 108, 0.0, 0.0, 1.0, "rad",
-           "Amplitude A of the transmission error (load side), twice per wave-generator turn"),
+           "Amplitude A of the transmission error (load side), twice per wave-generator turn: e(q_m) = "
+           "A sin(2 q_m + phi) + A4 sin(4 q_m + phi4)"),
     _param("kinematic_error_phase", 109, 0.0, -10.0, 10.0, "rad", "Phase phi of the transmission error"),
     _param("viscous_asymmetry", 110, 0.0, -0.99, 0.99, "1",
            "Viscous coefficients are b (1 + a_v) for positive and b (1 - a_v) for negative motion (both bodies)"),
+    _param("kinematic_error_4", 111, 0.0, 0.0, 1.0, "rad",
+           "Amplitude A4 of the transmission error's second harmonic, four times per wave-generator turn"),
+    _param("kinematic_error_4_phase", 112, 0.0, -10.0, 10.0, "rad", "Phase phi4 of the second harmonic"),
 )
 
 BY_NAME: dict[str, Variable] = {v.name: v for v in VARIABLES}

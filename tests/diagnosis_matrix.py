@@ -92,13 +92,17 @@ def load(case: Case, duration_s: float | None = None, rate_hz: float | None = No
 
 # ------------------------------------------------------------------------------------------ scoring -------------
 
-def library_truth(effect: str, truth: dict[str, Any]) -> float | None:
+def library_truth(effect: str, truth: dict[str, Any], params: dict[str, float] | None = None) -> float | None:
     """The hidden effect's magnitude in the library's own terms where the generator's shape is the library's;
-    None where it is not (the report must then say a shape mismatch remains)."""
+    None where it is not (the report must then say a shape mismatch remains). The kinematic error (the generator's
+    always has a 4/rev beside its 2/rev) is the library's shape where the diagnosis fitted its 4/rev too (the fitted
+    FMU ``params``): the log's motor turned far enough to tell the two apart."""
     m = truth["magnitudes"][effect][0]
     v = truth["variants"].get(effect, {})
     if effect in ("viscous_motor", "viscous_load"):
         return m
+    if effect == "kinematic_error":
+        return m if (params or {}).get("kinematic_error_4", 0.0) > 0 else None
     if effect == "hardening" and v.get("variant") == "cubic":
         return m / v["d95_rad"] ** 2          # relative stiffening m at d95: h = m / d95^2
     if effect == "stribeck" and v.get("variant") == "gaussian":
@@ -126,7 +130,7 @@ def score(case: Case, truth: dict[str, Any], diag: Any, elapsed: float) -> dict[
     for e in diag.effects:
         if e.name not in library:
             continue
-        ref = library_truth(e.name, truth)
+        ref = library_truth(e.name, truth, e.params)
         out["magnitudes"].append({"effect": e.name, "variant": truth["variants"].get(e.name, {}).get("variant"),
                                   "class": truth.get("magnitude_classes", {}).get(e.name), "magnitude": e.magnitude,
                                   "ci95": list(e.ci95), "truth": ref, "generator_magnitude":

@@ -14,7 +14,7 @@ from ident.model.plant import Plant
 
 ALL_ON = dict(b_m=1e-4, b_l=0.5, stribeck_ratio=0.5, stribeck_velocity=2e-4, friction_asymmetry=0.2,
               hardening=3e6, hysteresis_torque=2e-3, hysteresis_stiffness=1e4, kinematic_error=1e-5,
-              kinematic_error_phase=0.7, viscous_asymmetry=0.3)
+              kinematic_error_phase=0.7, viscous_asymmetry=0.3, kinematic_error_4=4e-6, kinematic_error_4_phase=-1.9)
 OUTS = ("q_m", "q_l", "v_m", "v_l", "hysteresis_state", "deflection", "spring_torque", "motor_friction_torque",
         "load_friction_torque")
 

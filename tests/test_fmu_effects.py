@@ -34,14 +34,16 @@ from ident import DriveParams, ParameterError, Plant, PlantError
 
 NOMINAL = DriveParams()
 EFFECTS = ("b_m", "b_l", "stribeck_ratio", "stribeck_velocity", "friction_asymmetry", "hardening",
-           "hysteresis_torque", "hysteresis_stiffness", "kinematic_error", "kinematic_error_phase", "viscous_asymmetry")
+           "hysteresis_torque", "hysteresis_stiffness", "kinematic_error", "kinematic_error_phase", "viscous_asymmetry",
+           "kinematic_error_4", "kinematic_error_4_phase")
 # Every effect on at realistic magnitudes for the nominal drive (the brief's ranges).
 ALL_ON = dict(b_m=1e-4, b_l=1.0, stribeck_ratio=0.5, stribeck_velocity=5e-4, friction_asymmetry=0.2,
               hardening=3e6, hysteresis_torque=3e-3, hysteresis_stiffness=1e4, kinematic_error=5e-5,
-              kinematic_error_phase=0.3, viscous_asymmetry=0.3)
+              kinematic_error_phase=0.3, viscous_asymmetry=0.3, kinematic_error_4=2e-5, kinematic_error_4_phase=1.2)
 CONSERVATIVE_AND_FRICTION = {k: v for k, v in ALL_ON.items() if not k.startswith("hysteresis")}
 # The load on the kinematic-error equilibrium of q_m = 0: the drive starts at rest with a relaxed spring.
-Q_L_EQ = ALL_ON["kinematic_error"] * math.sin(ALL_ON["kinematic_error_phase"])
+Q_L_EQ = ALL_ON["kinematic_error"] * math.sin(ALL_ON["kinematic_error_phase"]) \
+    + ALL_ON["kinematic_error_4"] * math.sin(ALL_ON["kinematic_error_4_phase"])
 
 
 @pytest.fixture(params=[2, 3], ids=["fmi2", "fmi3"])
@@ -82,9 +84,9 @@ class Reference:
 
     def spring(self, y):
         p = self.p
-        ph = 2 * y[0] + p.kinematic_error_phase
-        d = p.r * y[0] + p.kinematic_error * math.sin(ph) - y[1]
-        g = p.r + 2 * p.kinematic_error * math.cos(ph)
+        ph, ph4 = 2 * y[0] + p.kinematic_error_phase, 4 * y[0] + p.kinematic_error_4_phase
+        d = p.r * y[0] + p.kinematic_error * math.sin(ph) + p.kinematic_error_4 * math.sin(ph4) - y[1]
+        g = p.r + 2 * p.kinematic_error * math.cos(ph) + 4 * p.kinematic_error_4 * math.cos(ph4)
         return d, g, p.K_s * (d + p.hardening * d ** 3) + y[4]
 
     def levels(self, body):
@@ -358,13 +360,15 @@ def test_hardening_duffing_period(fmi: int) -> None:
 
 # ---------------------------------------------------------------------------- 3. kinematic error ------------------
 
+@pytest.mark.parametrize("A4", [0.0, 3e-5])
 @pytest.mark.parametrize("q_m0", [0.0, 0.37, 1.1, -2.3, 5.0])
-def test_kinematic_error_equilibrium(fmi: int, q_m0: float) -> None:
-    """Motor held, free load released 2e-5 rad off: it rings about r q_m + A sin(2 q_m + phi) as an undamped
-    oscillator, q_l(t) = q_eq + delta cos(w0 t)."""
-    A, phi = 8e-5, 0.4
-    p = NOMINAL.with_values(f_m=1e3, f_l=0.0, kinematic_error=A, kinematic_error_phase=phi)
-    q_eq = p.r * q_m0 + A * math.sin(2 * q_m0 + phi)
+def test_kinematic_error_equilibrium(fmi: int, q_m0: float, A4: float) -> None:
+    """Motor held, free load released 2e-5 rad off: it rings about r q_m + A sin(2 q_m + phi) + A4 sin(4 q_m +
+    phi4) as an undamped oscillator, q_l(t) = q_eq + delta cos(w0 t)."""
+    A, phi, phi4 = 8e-5, 0.4, -2.2
+    p = NOMINAL.with_values(f_m=1e3, f_l=0.0, kinematic_error=A, kinematic_error_phase=phi, kinematic_error_4=A4,
+                            kinematic_error_4_phase=phi4)
+    q_eq = p.r * q_m0 + A * math.sin(2 * q_m0 + phi) + A4 * math.sin(4 * q_m0 + phi4)
     delta = 2e-5
     dt, n = 1e-4, 2000
     w0 = math.sqrt(p.K_s / p.J_l)
@@ -380,20 +384,29 @@ def test_kinematic_error_equilibrium(fmi: int, q_m0: float) -> None:
         assert np.all(np.abs(out[:, 0] - q_eq) <= 1e-18) and np.all(np.abs(out[:, 1]) <= 1e-15)
 
 
-def test_kinematic_error_waveform(fmi: int) -> None:
+@pytest.mark.parametrize("A4", [0.0, 4e-5])
+def test_kinematic_error_waveform(fmi: int, A4: float) -> None:
     """Frictionless motor coasting through more than one turn, load following through a stiff spring: the load
-    angle traces r q_m + A sin(2 q_m + phi) (twice per wave-generator turn)."""
-    A, phi = 1e-4, -0.8
-    p = NOMINAL.with_values(f_m=0.0, f_l=0.0, K_s=1e7, kinematic_error=A, kinematic_error_phase=phi)
+    angle traces r q_m + A sin(2 q_m + phi) + A4 sin(4 q_m + phi4) (twice and four times per wave-generator
+    turn)."""
+    A, phi, phi4 = 1e-4, -0.8, 0.9
+    p = NOMINAL.with_values(f_m=0.0, f_l=0.0, K_s=1e7, kinematic_error=A, kinematic_error_phase=phi,
+                            kinematic_error_4=A4, kinematic_error_4_phase=phi4)
     v0 = 20.0
-    g0 = p.r + 2 * A * math.cos(phi)
-    with Plant(p, fmi_version=fmi, q_l_start=A * math.sin(phi), v_m_start=v0, v_l_start=g0 * v0) as plant:
+    g0 = p.r + 2 * A * math.cos(phi) + 4 * A4 * math.cos(phi4)
+    e0 = A * math.sin(phi) + A4 * math.sin(phi4)
+    with Plant(p, fmi_version=fmi, q_l_start=e0, v_m_start=v0, v_l_start=g0 * v0) as plant:
         out = traj(plant, np.zeros(400), 1e-3, ("q_m", "q_l"))
     q_m, q_l = out[:, 0], out[:, 1]
     assert q_m[-1] > 2 * math.pi  # more than one turn: both error periods seen
     err = q_l - p.r * q_m
-    np.testing.assert_allclose(err, A * np.sin(2 * q_m + phi), rtol=0, atol=3e-5 * A)
+    want = A * np.sin(2 * q_m + phi) + A4 * np.sin(4 * q_m + phi4)
+    np.testing.assert_allclose(err, want, rtol=0, atol=3e-5 * (A + A4))
     assert np.ptp(err) > 1.9 * A
+    # the 4/rev part is there at its size: the error's projection on sin(4 q_m + phi4) over whole turns
+    turns = q_m < 2 * math.pi * math.floor(q_m[-1] / (2 * math.pi))
+    share = 2 * np.mean((err - A * np.sin(2 * q_m + phi))[turns] * np.sin(4 * q_m[turns] + phi4))
+    assert share == pytest.approx(A4, abs=0.02 * A)
 
 
 # ---------------------------------------------------------------------------- 4. asymmetric friction -------------
@@ -683,7 +696,8 @@ def test_default_off_effects_leave_closed_form_bit_identical(fmu_any) -> None:
     assert np.array_equal(a, c[1:])
 
 
-@pytest.mark.parametrize("effect", ["b_l", "hardening", "kinematic_error", "friction_asymmetry", "viscous_asymmetry"])
+@pytest.mark.parametrize("effect", ["b_l", "hardening", "kinematic_error", "kinematic_error_4", "friction_asymmetry",
+                                    "viscous_asymmetry"])
 def test_general_propagator_matches_closed_form_for_vanishing_effect(fmi: int, effect: str) -> None:
     """A vanishing effect (1e-300) selects the RK4 propagator with the base physics: it reproduces the exact
     closed-form solution through stick-slip and a pulse train."""
@@ -706,6 +720,7 @@ def test_general_propagator_matches_closed_form_for_vanishing_effect(fmi: int, e
                                         ("stribeck_ratio", 11.0), ("stribeck_velocity", 0.0),
                                         ("hysteresis_torque", math.inf), ("hysteresis_stiffness", 0.0),
                                         ("kinematic_error", 2.0), ("kinematic_error_phase", math.nan),
+                                        ("kinematic_error_4", -1e-6), ("kinematic_error_4_phase", math.inf),
                                         ("viscous_asymmetry", 1.0), ("viscous_asymmetry", -math.inf)])
 def test_bad_effect_parameters_are_refused(fmi: int, name: str, value: float) -> None:
     var = V.BY_NAME[name]

@@ -19,8 +19,8 @@
  * always agrees with the event that triggered it (no Zeno loops from rounding).
  *
  * 2. General propagator (any optional effect on: viscous, also direction-dependent, Stribeck, asymmetric
- * friction, hardening spring, Dahl hysteresis, kinematic error). With d = r q_m + A sin(2 q_m + phi) - q_l,
- * g = dd/dq_m = r + 2 A cos(2 q_m + phi), tau_s = K_s (d + hardening d^3) + z:
+ * friction, hardening spring, Dahl hysteresis, kinematic error). With d = r q_m + e(q_m) - q_l, the kinematic error
+ * e = A sin(2 q_m + phi) + A4 sin(4 q_m + phi4), g = dd/dq_m = r + e'(q_m), tau_s = K_s (d + hardening d^3) + z:
  *     J_m v_m' = T - g tau_s - F_m          J_l v_l' = tau_s - F_l
  * A slipping body feels F = dir f (1 + a dir)(1 + s exp(-(v/vs)^2)) + b (1 + a_v dir) v; a stuck body stays stuck
  * while its net torque N lies in [-f (1 - a)(1 + s), f (1 + a)(1 + s)]. The Dahl element
@@ -341,7 +341,7 @@ static void settle_modes(HDModel *m) {
 static int effects_on(const HDModel *m) {
     return m->b_m != 0.0 || m->b_l != 0.0 || m->stribeck_ratio != 0.0 || m->friction_asymmetry != 0.0
         || m->hardening != 0.0 || m->hysteresis_torque != 0.0 || m->kinematic_error != 0.0
-        || m->viscous_asymmetry != 0.0;
+        || m->kinematic_error_4 != 0.0 || m->viscous_asymmetry != 0.0;
 }
 
 /* The state the general propagator integrates: positions, velocities and the two work quadratures. */
@@ -374,10 +374,10 @@ static FxSpring fx_spring(const HDModel *m, double q_m, double q_l) {
     FxSpring s;
     s.d = m->r * q_m - q_l;
     s.g = m->r;
-    if (m->kinematic_error != 0.0) {
-        double ph = 2.0 * q_m + m->kinematic_error_phase;
-        s.d = m->r * q_m + m->kinematic_error * sin(ph) - q_l;
-        s.g = m->r + 2.0 * m->kinematic_error * cos(ph);
+    if (m->kinematic_error != 0.0 || m->kinematic_error_4 != 0.0) {
+        double ph = 2.0 * q_m + m->kinematic_error_phase, ph4 = 4.0 * q_m + m->kinematic_error_4_phase;
+        s.d = m->r * q_m + m->kinematic_error * sin(ph) + m->kinematic_error_4 * sin(ph4) - q_l;
+        s.g = m->r + 2.0 * m->kinematic_error * cos(ph) + 4.0 * m->kinematic_error_4 * cos(ph4);
     }
     s.z = hysteresis_z(m, s.d);
     s.tau = m->K_s * (s.d + m->hardening * s.d * s.d * s.d) + s.z;
@@ -985,12 +985,12 @@ static double fx_bisect(const HDModel *m, const FxStart *st, const FxEvent *e, W
 }
 
 /* Longest substep for the bodies that slip: HD_SUBSTEPS_PER_PERIOD per period of their stiffest oscillation (tangent
- * stiffness at the twist d, largest gear factor r + 2A; a stuck body takes no part, the other rings against the spring
+ * stiffness at the twist d, largest gear factor r + 2A + 4A4; a stuck body takes no part, the other rings against the spring
  * alone), at most HD_DECAY_FRACTION of a slipping body's viscous time constant J / (b (1 + |a_v|)). */
 static double mode_substep(const HDModel *m, double d, int motor_slips, int load_slips) {
     double K = m->K_s * (1.0 + 3.0 * m->hardening * d * d)
              + (m->hysteresis_torque > 0.0 ? m->hysteresis_stiffness : 0.0);
-    double G = m->r + 2.0 * m->kinematic_error;
+    double G = m->r + 2.0 * m->kinematic_error + 4.0 * m->kinematic_error_4;
     double w2 = K * ((motor_slips ? G * G / m->J_m : 0.0) + (load_slips ? 1.0 / m->J_l : 0.0));
     double h_max = 2.0 * HD_PI / sqrt(w2) / HD_SUBSTEPS_PER_PERIOD;
     double va = 1.0 + fabs(m->viscous_asymmetry); /* the larger of the two directions' viscous coefficients */

@@ -11,10 +11,10 @@
  *
  * Optional effects (parameters vr 100+, all off by default): viscous friction b_m, b_l (direction-dependent
  * with viscous_asymmetry); Stribeck and asymmetric friction; a hardening spring K_s (d + hardening d^3); a Dahl
- * hysteresis element z in parallel with the spring; a kinematic error d = r q_m + A sin(2 q_m + phi) - q_l. With
- * any of them on, the same Karnopp stick-slip is propagated by a fixed-substep sixth-order Runge-Kutta method with
- * the friction / hysteresis modes held inside each substep and events located to the last bit (model.c, "general
- * propagator").
+ * hysteresis element z in parallel with the spring; a kinematic error d = r q_m + A sin(2 q_m + phi)
+ * + A4 sin(4 q_m + phi4) - q_l. With any of them on, the same Karnopp stick-slip is propagated by a fixed-substep
+ * sixth-order Runge-Kutta method with the friction / hysteresis modes held inside each substep and events located
+ * to the last bit (model.c, "general propagator").
  *
  * All the state of one instance lives in HDModel: no globals, instances are independent, and copying the struct
  * copies the complete simulation state (used for FMU state get/set/serialize).
@@ -47,6 +47,7 @@ typedef struct {
     /* Optional effects (0 = off, except the shape parameters stribeck_velocity, hysteresis_stiffness, phase). */
     double b_m, b_l, stribeck_ratio, stribeck_velocity, friction_asymmetry, hardening;
     double hysteresis_torque, hysteresis_stiffness, kinematic_error, kinematic_error_phase, viscous_asymmetry;
+    double kinematic_error_4, kinematic_error_4_phase;
 
     /* Input: motor torque [N m], held constant over a communication step. */
     double motor_torque;

@@ -149,17 +149,18 @@ def score_test(r: np.ndarray, Q: np.ndarray, B: np.ndarray, bounded: tuple[bool,
 
 
 def detection_limit(r: np.ndarray, Q: np.ndarray, B: np.ndarray, grid_size: int, one_sided: bool,
-                    min_gain: float) -> np.ndarray:
+                    min_gain: float, df: int | None = None) -> np.ndarray:
     """The candidate's coordinates (``B``'s columns) along the direction the log sees least, at the smallest size
     the loop could name (see the module docstring): the screen passes it with ``DETECTION_POWER``, and fitted it
     would remove the share 1 - 1/``min_gain`` of the current cost |r|^2 that the acceptance rule asks (the training
     part standing in for the held-back one). Infinite where the log does not see a direction at all (a column the
-    current unknowns already span)."""
+    current unknowns already span). ``df``: the screen's degrees of freedom when ``B`` holds only the coordinates
+    of the effect's size (its other ones partialled out in ``Q``); default ``B``'s columns."""
     _, Z, sigma2 = _partialled(r, Q, B)
     info, vecs = np.linalg.eigh(Z.T @ Z)
     if not np.all(np.isfinite(info)) or not info[0] > 0:
         return np.full(B.shape[1], math.inf)
-    df = B.shape[1]
+    df = df or B.shape[1]
     crit = float(stats.chi2.isf(SCREEN_LEVEL / grid_size * (2.0 if one_sided else 1.0), df))
     lam = optimize.brentq(lambda x: float(stats.ncx2.sf(crit, df, x)) - DETECTION_POWER, 1e-6, 1e4 * (crit + df))
     removed = max(lam * sigma2, float(r @ r) * (1.0 - 1.0 / min_gain))   # x'Z'Zx at the limit

@@ -159,7 +159,7 @@ class OutputError:
         p = self.params(theta)
         d0 = float(theta[3]) * p.f_l / p.K_s  # initial deflection, a fraction of the static band
         q_m0 = float(self.y_m[0])
-        self.plant.reset(p, q_m_start=q_m0, q_l_start=p.r * q_m0 - d0, v_m_start=0.0, v_l_start=0.0)
+        self.plant.reset(p, q_m_start=q_m0, q_l_start=p.load_angle_at(q_m0, d0), v_m_start=0.0, v_l_start=0.0)
         q_m, q_l = self.plant.positions(self.torque, self.log.dt)
         offset = float(np.mean(self.y_l - q_l))  # the load sensor's zero, projected out
         q_m = q_m + float(np.mean(self.y_m - q_m))  # and the encoder's unknown sub-count start position

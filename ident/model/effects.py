@@ -6,8 +6,9 @@ implements exactly the formulas below; ``tests/test_effects.py`` holds the two e
 
 Equations (SI, load-side angles; ``dir`` is a slipping body's direction, +1 / -1)::
 
-    d     = r q_m + A sin(2 q_m + phi) - q_l                 deflection incl. kinematic error (A, phi)
-    g     = r + 2 A cos(2 q_m + phi)                          d(d)/d(q_m): the transmission seen by the motor
+    d     = r q_m + e(q_m) - q_l                              deflection incl. kinematic error
+    e     = A sin(2 q_m + phi) + A4 sin(4 q_m + phi4)         twice and four times per wave-generator turn
+    g     = r + e'(q_m)                                       d(d)/d(q_m): the transmission seen by the motor
     tau_s = K_s (d + hardening d^3) + z                       spring torque (hardening = K3/K_s)
     z'    = sigma dd (1 - sgn(dd) z / H),  dd = g v_m - v_l    Dahl hysteresis in parallel (H = 0: off)
     J_m v_m' = T - g tau_s - F_m          J_l v_l' = tau_s - F_l
@@ -41,14 +42,20 @@ import casadi as ca
 # ------------------------------------------------------------------------------------------ CasADi terms --------
 
 
-def deflection(q_m: Any, q_l: Any, r: Any, kin_amp: Any = 0.0, kin_phase: Any = 0.0) -> Any:
-    """d = r q_m + A sin(2 q_m + phi) - q_l [rad, load side]."""
-    return r * q_m + kin_amp * ca.sin(2 * q_m + kin_phase) - q_l
+def kinematic_error(q_m: Any, kin: tuple[Any, Any, Any, Any] = (0.0, 0.0, 0.0, 0.0)) -> Any:
+    """e = A sin(2 q_m + phi) + A4 sin(4 q_m + phi4) [rad, load side]; ``kin`` = (A, phi, A4, phi4)."""
+    return kin[0] * ca.sin(2 * q_m + kin[1]) + kin[2] * ca.sin(4 * q_m + kin[3])
 
 
-def transmission(q_m: Any, r: Any, kin_amp: Any = 0.0, kin_phase: Any = 0.0) -> Any:
-    """g = d(d)/d(q_m) = r + 2 A cos(2 q_m + phi): the factor by which the spring torque acts on the motor."""
-    return r + 2 * kin_amp * ca.cos(2 * q_m + kin_phase)
+def deflection(q_m: Any, q_l: Any, r: Any, kin: tuple[Any, Any, Any, Any] = (0.0, 0.0, 0.0, 0.0)) -> Any:
+    """d = r q_m + e(q_m) - q_l [rad, load side]."""
+    return r * q_m + kinematic_error(q_m, kin) - q_l
+
+
+def transmission(q_m: Any, r: Any, kin: tuple[Any, Any, Any, Any] = (0.0, 0.0, 0.0, 0.0)) -> Any:
+    """g = d(d)/d(q_m) = r + 2 A cos(2 q_m + phi) + 4 A4 cos(4 q_m + phi4): the factor by which the spring torque
+    acts on the motor."""
+    return r + 2 * kin[0] * ca.cos(2 * q_m + kin[1]) + 4 * kin[2] * ca.cos(4 * q_m + kin[3])
 
 
 def spring_torque(d: Any, K_s: Any, hardening: Any = 0.0, z: Any = 0.0) -> Any:
@@ -87,8 +94,9 @@ def slip_dynamics(params: dict[str, Any]) -> ca.Function:
     p = {**EFFECT_DEFAULTS, **params}
     x, u = ca.SX.sym("x", 5), ca.SX.sym("T")
     q_m, q_l, v_m, v_l, z = (x[i] for i in range(5))
-    d = deflection(q_m, q_l, p["r"], p["kinematic_error"], p["kinematic_error_phase"])
-    g = transmission(q_m, p["r"], p["kinematic_error"], p["kinematic_error_phase"])
+    kin = tuple(p[k] for k in KINEMATIC_ERROR_PARAMS)
+    d = deflection(q_m, q_l, p["r"], kin)
+    g = transmission(q_m, p["r"], kin)
     tau = spring_torque(d, p["K_s"], p["hardening"], z)
     common = dict(asymmetry=p["friction_asymmetry"], stribeck_ratio=p["stribeck_ratio"],
                   viscous_asymmetry=p["viscous_asymmetry"])
@@ -120,8 +128,10 @@ def _nonzero(x: Any) -> bool:
 EFFECT_DEFAULTS: dict[str, float] = {
     "b_m": 0.0, "b_l": 0.0, "stribeck_ratio": 0.0, "stribeck_velocity": 1e-3, "friction_asymmetry": 0.0,
     "hardening": 0.0, "hysteresis_torque": 0.0, "hysteresis_stiffness": 1.0e4, "kinematic_error": 0.0,
-    "kinematic_error_phase": 0.0, "viscous_asymmetry": 0.0,
+    "kinematic_error_phase": 0.0, "viscous_asymmetry": 0.0, "kinematic_error_4": 0.0, "kinematic_error_4_phase": 0.0,
 }
+#: the kinematic error's FMU parameters, in the order of ``kin`` above: (A, phi, A4, phi4)
+KINEMATIC_ERROR_PARAMS = ("kinematic_error", "kinematic_error_phase", "kinematic_error_4", "kinematic_error_4_phase")
 
 
 @dataclass(frozen=True)
@@ -170,8 +180,9 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
     Effect("hysteresis", (FitVar("hysteresis_torque", 0.0, 1e6), FitVar("hysteresis_stiffness", 1e-3, 1e15)),
            "N.m", "a loop in spring torque vs twist: direction-dependent offset and amplitude-dependent damping of "
            "the ringing", ("two-inertia",), lambda v: v["hysteresis_torque"], "hysteresis_torque"),
-    Effect("kinematic_error", (FitVar("kinematic_error", 0.0, 1.0), FitVar("kinematic_error_phase", -10.0, 10.0)),
-           "rad", "load angle error periodic in motor angle, twice per wave-generator turn",
+    Effect("kinematic_error", (FitVar("kinematic_error", 0.0, 1.0), FitVar("kinematic_error_phase", -10.0, 10.0),
+                               FitVar("kinematic_error_4", 0.0, 1.0), FitVar("kinematic_error_4_phase", -10.0, 10.0)),
+           "rad", "load angle error periodic in motor angle, twice (and four times) per wave-generator turn",
            ("two-inertia",), lambda v: v["kinematic_error"], "kinematic_error"),
     Effect("flexibility", (), "N.m/rad", "a resonance the rigid model cannot produce: the load rings on its own "
            "after every move while the motor stands still", ("rigid",), lambda v: v.get("K_s", math.nan), "K_s"),

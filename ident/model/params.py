@@ -63,6 +63,8 @@ class DriveParams:
     kinematic_error: float = V.BY_NAME["kinematic_error"].start  # rad, transmission error amplitude (load side)
     kinematic_error_phase: float = V.BY_NAME["kinematic_error_phase"].start  # rad
     viscous_asymmetry: float = V.BY_NAME["viscous_asymmetry"].start  # viscous coefficients b (1 +- a_v) for +- motion
+    kinematic_error_4: float = V.BY_NAME["kinematic_error_4"].start  # rad, its 4/rev harmonic (load side)
+    kinematic_error_4_phase: float = V.BY_NAME["kinematic_error_4_phase"].start  # rad
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -102,6 +104,15 @@ class DriveParams:
     def count_at_arm_m(self) -> float:
         """One motor encoder count seen at the arm tip [m] (1.50 µm on the nominal drive)."""
         return self.count_rad * self.r * self.arm_length
+
+    def load_angle_at(self, q_m: float, twist: float = 0.0) -> float:
+        """The load angle [rad] at which the spring's twist is ``twist`` with the motor at ``q_m``:
+        r q_m + e(q_m) - twist, e the kinematic error (``ident.model.effects``). A simulation that starts a log at
+        rest places the load here: without e(q_m) a kinematic error would start it twisted by e(q_m), which can lie
+        well outside the static band a log at rest must start in."""
+        e = self.kinematic_error * math.sin(2.0 * q_m + self.kinematic_error_phase) \
+            + self.kinematic_error_4 * math.sin(4.0 * q_m + self.kinematic_error_4_phase)
+        return self.r * q_m + e - twist
 
     @classmethod
     def nominal(cls) -> "DriveParams":

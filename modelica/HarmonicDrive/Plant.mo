@@ -25,6 +25,8 @@ model Plant "Harmonic-drive plant: two inertias, gear ratio r = q_l/q_m, flexspl
   parameter Real kinematic_error(unit = "rad", min = 0.0, max = 1.0) = 0.0 "Amplitude A of the transmission error (load side)";
   parameter Real kinematic_error_phase(unit = "rad", min = -10.0, max = 10.0) = 0.0 "Phase phi of the transmission error";
   parameter Real viscous_asymmetry(unit = "1", min = -0.99, max = 0.99) = 0.0 "Viscous coefficients b (1 + a_v) for positive, b (1 - a_v) for negative motion";
+  parameter Real kinematic_error_4(unit = "rad", min = 0.0, max = 1.0) = 0.0 "Amplitude A4 of the error's second harmonic, four times per wave-generator turn";
+  parameter Real kinematic_error_4_phase(unit = "rad", min = -10.0, max = 10.0) = 0.0 "Phase phi4 of the second harmonic";
 
   // Initial state
   parameter Real q_m_start(unit = "rad", min = -1e6, max = 1e6) = 0.0 "Initial motor angle";
@@ -47,7 +49,7 @@ model Plant "Harmonic-drive plant: two inertias, gear ratio r = q_l/q_m, flexspl
   output Real arm_position(unit = "m") "Arm tip position arm_length * q_l";
   output Real input_work(unit = "J") "Work done by the motor torque since the start";
   output Real friction_work(unit = "J") "Energy dissipated by friction since the start";
-  output Real deflection(unit = "rad") "Spring deflection d = r q_m + kinematic_error sin(2 q_m + phase) - q_l";
+  output Real deflection(unit = "rad") "Spring deflection d = r q_m + e(q_m) - q_l, e the kinematic error";
   output Real hysteresis_state(unit = "N.m") "Torque z of the Dahl hysteresis element";
   output Real motor_friction_torque(unit = "N.m") "Friction torque F_m on the motor (the holding reaction while stuck)";
   output Real load_friction_torque(unit = "N.m") "Friction torque F_l on the load (the holding reaction while stuck)";
@@ -83,8 +85,8 @@ equation
   down_m = f_m*(1 - friction_asymmetry)*(1 + stribeck_ratio);
   up_l = f_l*(1 + friction_asymmetry)*(1 + stribeck_ratio);
   down_l = f_l*(1 - friction_asymmetry)*(1 + stribeck_ratio);
-  deflection = r*q_m + kinematic_error*sin(2*q_m + kinematic_error_phase) - q_l;
-  g = r + 2*kinematic_error*cos(2*q_m + kinematic_error_phase);
+  deflection = r*q_m + kinematic_error*sin(2*q_m + kinematic_error_phase) + kinematic_error_4*sin(4*q_m + kinematic_error_4_phase) - q_l;
+  g = r + 2*kinematic_error*cos(2*q_m + kinematic_error_phase) + 4*kinematic_error_4*cos(4*q_m + kinematic_error_4_phase);
   spring_torque = K_s*(deflection + hardening*deflection^3) + hysteresis_state;
   tau_m = motor_torque - g*spring_torque;
   tau_l = spring_torque;
@@ -154,7 +156,8 @@ Stribeck friction (<code>stribeck_ratio</code> s, <code>stribeck_velocity</code>
 motor); asymmetric levels f (1 &plusmn; <code>friction_asymmetry</code>); a hardening spring
 K_s (d + <code>hardening</code> d^3); a Dahl hysteresis element z' = sigma dd (1 - sgn(dd) z/H) in parallel
 with the spring (<code>hysteresis_torque</code> H, <code>hysteresis_stiffness</code> sigma); a kinematic error
-d = r q_m + A sin(2 q_m + phi) - q_l (<code>kinematic_error</code>, <code>kinematic_error_phase</code>).
+d = r q_m + A sin(2 q_m + phi) + A4 sin(4 q_m + phi4) - q_l (<code>kinematic_error</code>, <code>kinematic_error_phase</code>,
+<code>kinematic_error_4</code>, <code>kinematic_error_4_phase</code>).
 Then J_m q_m'' = T - g tau_s - F_m, J_l q_l'' = tau_s - F_l with g = r + 2 A cos(2 q_m + phi),
 tau_s = spring_torque; a slipping body feels F = dir f (1 + a dir)(1 + s exp(-(v/vs)^2)) + b (1 + a_v dir) v, a stuck body
 stays stuck while -f (1 - a)(1 + s) &lt;= N &lt;= f (1 + a)(1 + s).

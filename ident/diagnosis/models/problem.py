@@ -177,7 +177,7 @@ def simulate_full(log: DriveLog, problem: ModelProblem, theta: np.ndarray) -> di
     q_m0 = float(problem.y_m[0])
     outputs = ("q_m", "q_l", "v_m", "v_l", "spring_torque")
     with Plant(p) as plant:
-        plant.reset(p, q_m_start=q_m0, q_l_start=p.r * q_m0 - d0, v_m_start=0.0, v_l_start=0.0)
+        plant.reset(p, q_m_start=q_m0, q_l_start=p.load_angle_at(q_m0, d0), v_m_start=0.0, v_l_start=0.0)
         traj = plant.trajectory(log.motor_torque_Nm[:-1], log.dt, outputs)
     s = problem.stop
     y_m = log.motor_pos_rad + 0.5 * problem.count

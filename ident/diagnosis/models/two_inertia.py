@@ -51,6 +51,7 @@ from ..screening import ScoreTest, best_of_grid, detection_limit, partial_out, q
 from . import two_inertia_report as report
 from . import CandidateFit, Fitted, Magnitude, ModelPlugin
 from .coordinates import (
+    SIZE_COORDS,
     TWO_INERTIA_EFFECTS,
     LogScales,
     coordinates,
@@ -117,6 +118,7 @@ class TwoInertiaPlugin(ModelPlugin):
         self.names = tuple(n for n in names if n != FLEXIBILITY)
         self.sigma = math.nan   # the load sensor's noise: the identifier's one estimate, set by fit_base
         self.identified: Any = None
+        self.scales: LogScales | None = None   # what the log shows through the base fit (set by fit_base)
         self.resolution_pulses = resolution_pulses
         self.held_source = "the last 30 % of the log" if holdout is None else holdout.source
 
@@ -140,8 +142,8 @@ class TwoInertiaPlugin(ModelPlugin):
             sim = simulate_full(self.full, problem, fit.theta)
         finally:
             problem.close()
-        scales = LogScales.from_simulation(sim, self.stop, base)
-        return self.evaluate((), fit.theta, base, scales, keep=True)
+        self.scales = LogScales.from_simulation(sim, self.stop, base)
+        return self.evaluate((), fit.theta, base, self.scales, keep=True)
 
     def _rigid(self) -> Fitted:
         """The rigid kinematics q_l = r q_m (encoder reading's mid-count; the load sensor's zero fitted on the
@@ -249,8 +251,8 @@ class TwoInertiaPlugin(ModelPlugin):
         values = {**{k: by_name[k].value(v) for k, v in point.items()},
                   **{c.name: c.value(float(x)) for c, x in zip(linear, step)}}
         sizes = {c.name: c.scale * SCREEN_RESPONSE_SIGMA / max(rms(col), 1e-300) for c, col in zip(linear, cols)}
-        at_limit = dict(zip((c.name for c in linear), detection_limit(r, Q, B, *grid_of, MIN_GAIN)))
-        x = np.array([point[c.name] if c.name in point else at_limit[c.name] for c in coords])
+        x = np.array([point[c.name] if c.name in point else 0.0 for c in coords])
+        x[[coords.index(c) for c in _sized(name, linear)]] = _limit(name, linear, r, Q, B, grid_of)
         limit = magnitude_of(name, fmu_values(name, coords, x)) if np.all(np.isfinite(x)) else math.inf
         return (values, lm, robust, np.concatenate([base_step, step]), ok), sizes, limit
 
@@ -422,7 +424,7 @@ class TwoInertiaPlugin(ModelPlugin):
 
     def probe_size(self, model: Fitted, name: str, factor: float, budget: float | None) -> Fitted | None:
         """The effect's linear coordinates (its size: the only one for every effect but the kinematic error, whose
-        two are held together, fixing its phase too) held at ``factor`` times their values; the other unknowns
+        four, its 2/rev and 4/rev sine and cosine parts, are held together, fixing its phases too) held at ``factor`` times their values; the other unknowns
         start where the model's covariance predicts them along the valley (their regression on the held ones) and
         are refitted within ``budget``. A probe that runs out of budget returns the best point it simulated (its
         cost is then an upper bound of the profile's)."""
@@ -560,7 +562,7 @@ class TwoInertiaPlugin(ModelPlugin):
         return report.step(model, added, score, extra, self.resolution_pulses)
 
     def derivations(self) -> list[str]:
-        return report.derivations()
+        return report.derivations() + (self.scales.describe() if self.scales is not None else [])
 
     def notes(self) -> list[str]:
         return [f"held-back data: {self.held_source} (t >= {self.full.time_s[self.stop]:.3f} s), only ever "
@@ -638,12 +640,30 @@ def _layout(model: Fitted) -> list[Any]:
     return [c for name in _fmu_effects(model.effects) for c in coordinates(name, st.scales, st.sens.get(name))]
 
 
+def _sized(name: str, linear: list[Any]) -> list[Any]:
+    """The linear coordinates whose values make effect ``name``'s magnitude (``SIZE_COORDS``; default all)."""
+    keep = SIZE_COORDS.get(name)
+    return [c for c in linear if keep is None or c.name in keep]
+
+
+def _limit(name: str, linear: list[Any], r: np.ndarray, Q: np.ndarray, B: np.ndarray, grid_of: tuple[int, bool]
+           ) -> np.ndarray:
+    """The coordinates of effect ``name``'s size at its detection limit (``screening.detection_limit``): its other
+    linear coordinates (the kinematic error's 4/rev) are unknowns a fit would free too, partialled out with the
+    current model's, and the screen's degrees of freedom count them."""
+    sized = _sized(name, linear)
+    own = [i for i, c in enumerate(linear) if c in sized]
+    rest = [i for i in range(len(linear)) if i not in own]
+    Qx = partial_out(np.column_stack([Q, B[:, rest]])) if rest else Q
+    return detection_limit(r, Qx, B[:, own], *grid_of, MIN_GAIN, df=len(linear))
+
+
 def _magnitude_gradient(name: str, coords: list[Any], x: np.ndarray) -> np.ndarray:
     """d(magnitude)/dx of effect ``name`` (for the delta method)."""
-    if name == "kinematic_error":
+    if name == "kinematic_error":   # A = hypot(c, s); the 4/rev coordinates do not enter it
         c, s = coords[0].value(x[0]), coords[1].value(x[1])
         A = math.hypot(c, s) or 1e-300
-        return np.array([c / A * coords[0].scale, s / A * coords[1].scale])
+        return np.array([c / A * coords[0].scale, s / A * coords[1].scale] + [0.0] * (len(coords) - 2))
     g = np.zeros(len(coords))
     g[0] = coords[0].scale * (1.0 if name != "asymmetric_friction" else math.copysign(1.0, x[0] or 1.0))
     return g

@@ -120,9 +120,10 @@ def derivations() -> list[str]:
             "(ident/diagnosis/models/coordinates.py): viscous coefficients by the friction level over the typical "
             "slip speed, hardening by 1/d95^2, hysteresis torque by K_s d95 and its saturation deflection by d95, "
             "kinematic error by d95; the refits start from the screen's Gauss-Newton step, not from fixed values",
-            "Stribeck velocity grid of the screen: the 5, 25, 50, 75 and 95 % quantiles of the load's slip speed "
-            "and a tenth of the 5 % one; hysteresis saturation-deflection grid: 0.03, 0.1, 0.3 and 1 x d95; the "
-            "other effects are linear at zero (kinematic error as its sine and cosine parts) and need no grid"]
+            "Stribeck velocity grid of the screen: 8 geometric steps from a tenth of the load's 5 % slip speed to its "
+            "95 % slip speed; hysteresis saturation-deflection grid: 0.03, 0.1, 0.3 and 1 x d95; the "
+            "other effects are linear at zero (kinematic error as the sine and cosine parts of its 2/rev and 4/rev "
+            "harmonics) and need no grid"]
 
 
 def plots(log: DriveLog, stop: int, models: list[Any], out: Path) -> dict[str, str]:
