@@ -424,10 +424,10 @@ class TwoInertiaPlugin(ModelPlugin):
 
     def probe_size(self, model: Fitted, name: str, factor: float, budget: float | None) -> Fitted | None:
         """The effect's linear coordinates (its size: the only one for every effect but the kinematic error, whose
-        four, its 2/rev and 4/rev sine and cosine parts, are held together, fixing its phases too) held at ``factor`` times their values; the other unknowns
-        start where the model's covariance predicts them along the valley (their regression on the held ones) and
-        are refitted within ``budget``. A probe that runs out of budget returns the best point it simulated (its
-        cost is then an upper bound of the profile's)."""
+        sine and cosine parts, of its 2/rev and where fitted its 4/rev, are held together, fixing its phases too) held
+        at ``factor`` times their values; the other unknowns start where the model's covariance predicts them along
+        the valley (their regression on the held ones) and are refitted within ``budget``. A probe that runs out of
+        budget returns the best point it simulated (its cost is then an upper bound of the profile's)."""
         st = model.state
         if st.rigid or name == FLEXIBILITY:
             return None
