@@ -208,6 +208,21 @@ def test_a_viscous_friction_is_named_above_the_limit_a_log_without_one_quotes():
         assert [e.name for e in diagnose_rigid(_inverse_dynamics_log(b=factor * limit, seed=1)).effects] == named
 
 
+def test_a_viscous_asymmetry_is_named_above_the_limit_a_log_without_one_quotes():
+    """With viscous friction named, the rigid force is linear in the viscous asymmetry (Fv |v| per unit of a_v), so
+    the limit a log without an asymmetry quotes is where one starts to be named: 3x it names asymmetric friction,
+    0.3x does not; the sentence says what to record."""
+    d = diagnose_rigid(_inverse_dynamics_log(b=4e-3, seed=2))
+    assert [e.name for e in d.effects] == ["viscous_motor"], d.summary
+    screen = d.steps[-1].screen.set_index("candidate")
+    limit = float(screen.loc["asymmetric_friction", "detectable"])
+    assert 0 < limit < 1 and any(s.startswith(f"asymmetric_friction is not named: this log cannot tell one below "
+                                              f"{limit:.3g} 1") and "both directions" in s for s in d.summary)
+    for factor, named in ((0.3, ["viscous_motor"]), (3.0, ["viscous_motor", "asymmetric_friction"])):
+        log = _inverse_dynamics_log(b=4e-3, seed=2, viscous_asymmetry=factor * limit)
+        assert [e.name for e in diagnose_rigid(log).effects] == named, factor
+
+
 def test_log_that_does_not_move_is_refused():
     log = _inverse_dynamics_log(b=0.0)
     still = DriveLog(log.time_s, log.motor_torque_Nm, np.zeros(log.n), None, log.meta, source="<still>")

@@ -108,10 +108,9 @@ class RigidPlugin(ModelPlugin):
         return [self._score(fit, name, Q) for name in names]
 
     def _score(self, fit: RigidModelFit, name: str, Q: np.ndarray) -> ScoreTest:
-        """The score test of ``name``, with its detection limit where it has one coordinate in the magnitude's unit
-        (the force is linear in it, so the limit is exact to first order): the viscous level (one for both
-        directions) and the Stribeck ratio at each velocity of the grid. The asymmetry has none: its magnitude is a
-        ratio of two coordinates."""
+        """The score test of ``name``, with its detection limit where the force is linear in the magnitude (the limit
+        is then exact to first order): the viscous level (one for both directions), the Stribeck ratio at each
+        velocity of the grid, and the asymmetry of a model with viscous friction (``_asymmetry_limit``)."""
         spec = fit.spec.add(name)
         r = -fit.e  # the loop's residual convention: model - data
         if name == "stribeck":
@@ -133,6 +132,9 @@ class RigidPlugin(ModelPlugin):
             level = B[:, [i for i, c in enumerate(spec.coords()) if c.startswith("Fv")]].sum(axis=1)
             quote_limits(test, [float(detection_limit(r, Q, level[:, None], 1, True, MIN_GAIN)[0])], [""],
                          self.units[name])
+        if name == "asymmetric_friction" and "Fv" in fit.coords:
+            quote_limits(test, [_asymmetry_limit(fit, spec, B, r, Q)], [""], self.units[name])
+            test.record = "moves in both directions at the same speeds"
         return test
 
     @staticmethod
@@ -227,6 +229,17 @@ class RigidPlugin(ModelPlugin):
         from .rigid_report import sections
 
         return sections(self, models)
+
+
+def _asymmetry_limit(fit: RigidModelFit, spec: Spec, B: np.ndarray, r: np.ndarray, Q: np.ndarray) -> float:
+    """The asymmetry the log could name at a model with viscous friction Fv: the PDF's direction-dependent levels,
+    Fv (1 + a_v sgn v) v = Fv v + a_v Fv |v|, add the column Fv |v| (the difference of the two directions' viscous
+    columns) per unit of a_v, linear in it (its Coulomb part, Fc a, is the offset's own regressor and adds nothing
+    a model with an offset does not have)."""
+    coords = spec.coords()
+    fv = float(fit.beta[fit.coords.index("Fv")])
+    col = fv * (B[:, coords.index("Fv_pos")] - B[:, coords.index("Fv_neg")])
+    return abs(float(detection_limit(r, Q, col[:, None], 1, False, MIN_GAIN)[0]))
 
 
 def _split(log: DriveLog, holdout: DriveLog | None) -> tuple[DriveLog, DriveLog]:
