@@ -14,6 +14,8 @@ from typing import Any
 
 from fmu_build import variables as V
 
+from .effects import KINEMATIC_ERROR_PARAMS, kinematic_error
+
 
 class ParameterError(ValueError):
     """A drive parameter is unknown, not a finite number, or outside its allowed range."""
@@ -110,8 +112,7 @@ class DriveParams:
         r q_m + e(q_m) - twist, e the kinematic error (``ident.model.effects``). A simulation that starts a log at
         rest places the load here: without e(q_m) a kinematic error would start it twisted by e(q_m), which can lie
         well outside the static band a log at rest must start in."""
-        e = self.kinematic_error * math.sin(2.0 * q_m + self.kinematic_error_phase) \
-            + self.kinematic_error_4 * math.sin(4.0 * q_m + self.kinematic_error_4_phase)
+        e = float(kinematic_error(q_m, tuple(getattr(self, k) for k in KINEMATIC_ERROR_PARAMS)))
         return self.r * q_m + e - twist
 
     @classmethod
