@@ -582,6 +582,8 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
         mag = plugin.magnitude(final, e.name)
         named.append(NamedEffect(e.name, mag.value, mag.ci95, mag.unit, e.evidence, e.runner_up, e.margin,
                                  mag.params))
+        if mag.doubt:
+            search.doubts.setdefault(e.name, []).append(mag.doubt)
         if e.name in search.size_checks:
             widen(named[-1], final, search.size_checks[e.name], search.doubts.setdefault(e.name, []))
     over, levels = plugin.over_noise(final), plugin.confident_levels()

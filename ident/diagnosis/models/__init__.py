@@ -72,12 +72,14 @@ class CandidateFit:
 
 @dataclass
 class Magnitude:
-    """An effect's magnitude in a model: value, 95 % interval, unit and the FMU/model parameters of the effect."""
+    """An effect's magnitude in a model: value, 95 % interval, unit and the FMU/model parameters of the effect;
+    ``doubt``: why the log cannot pin the size the report quotes, though it is fitted ('' when it can)."""
 
     value: float
     ci95: tuple[float, float]
     unit: str
     params: dict[str, float] = field(default_factory=dict)
+    doubt: str = ""
 
     @property
     def excludes_zero(self) -> bool:
