@@ -662,8 +662,8 @@ def _size_doubt(name: str, scales: LogScales) -> str:
     """Why the log cannot pin the size quoted for effect ``name`` ('' when it can): a kinematic error fitted as its
     2/rev alone, over motor angles that cannot tell the 4/rev from it. The amplitude is then the 2/rev that
     reproduces the local shape, not the drive's 2/rev, and its interval knows nothing of the 4/rev (measured on the
-    independent generator's default-design logs: 76-77 % high on one drive's three,
-    two of them with confident intervals that missed the truth)."""
+    independent generator's default-design logs: 76-77 % high on one drive's three, two of them with confident
+    intervals that missed the truth)."""
     if name != "kinematic_error" or 4 in scales.kinematic_harmonics:
         return ""
     return (f"its size is the 2/rev alone: over this log's motor angles the 4/rev cannot be told from it (the 2/rev "
