@@ -827,6 +827,22 @@ def test_a_candidate_out_of_budget_blocks_a_confident_name():
     assert any("cannot be ruled out" in s for s in d.summary)
 
 
+def test_a_fit_that_runs_out_of_budget_is_judged_at_the_best_point_it_reached():
+    """A budget that pays for the refit's starts and a few iterations, not its convergence: the best point reached
+    is a model like any other. The strong hardening it holds passes the rule there and is named, tentatively with
+    that reason, and the accepted model is refitted on from where the budget ended; it is not listed as not ruled
+    out. Before, the candidate was "not fitted" and nothing was named."""
+    d, truth = diagnosed(HARDENING, workers=0, budget=12.0, max_effects=1)
+    cand = d.steps[0].candidates.set_index("candidate")
+    assert cand.loc["hardening", "accepted"] and "judged at the best point it reached" in cand.loc["hardening", "why"]
+    assert cand.loc["hardening", "evaluations"] <= 12.0
+    [e] = d.effects
+    assert e.name == "hardening" and e.tentative
+    assert "before it converged" in e.why_tentative
+    assert all(r["candidate"] != "hardening" for r in d.not_ruled_out)
+    assert any("refitted on from where it stopped" in n for n in d.notes)
+
+
 def test_rigid_start_names_flexibility_by_the_acceptance_rule():
     """From the rigid kinematics q_l = r q_m, flexibility is named only through the rule every effect passes (its
     held-back gain, Diebold-Mariano p and BIC change are reported), with K_s and an interval covering the truth."""

@@ -13,7 +13,11 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    screen's first-order ranking can misorder candidates that explain the same residual), on the workers
    (``plugin.refit``), each within its evaluation budget (simulations, never seconds), then its size searched on
    the same worker (``sizes.search_candidate``: a stalled refit would lose to a rival it should beat). A candidate
-   that runs out of budget is *not ruled out*: no name of the diagnosis is then more than tentative.
+   that runs out of budget is judged at the best point it reached: that point is a model like any other, and if it
+   passes the rule the effect is there (measured on two-effect logs of the independent generator: the one missing
+   effect of two logs ran out at step 2, a kinematic error and a Stribeck friction, and was never named). It is
+   then named tentatively and its model refitted on from there (``plugin.converge``); if it is not named it is *not
+   ruled out*: no name of the diagnosis is then more than tentative.
 5. **Accept** the refitted candidate with the lowest held-back cost when it passes the one acceptance rule every
    effect (flexibility included) must pass: the held-back cost falls by more than ``MIN_GAIN``, a one-sided
    Diebold-Mariano test of the held-back losses gives p < ``DM_LEVEL``, the training BIC falls, its magnitude's
@@ -71,6 +75,8 @@ from .sizes import SIZE_PROBE, Checks, SizeSearch, search_candidate, search_size
 
 #: one-sided Diebold-Mariano level of the held-back losses
 DM_LEVEL = 0.01
+#: why a candidate's fit is unfinished (``CandidateFit.exhausted``); such a fit is judged at the best point it reached
+UNFINISHED = "its refit used up its evaluation budget before it converged"
 #: a from-scratch convergence of an accepted model may use this many candidate budgets
 CONVERGE_BUDGETS = 2.0
 #: two fitted models whose training costs differ by less than this many noise variances are not told apart by the
@@ -327,7 +333,7 @@ class _Search:
                              desc=f"candidates (step {k})")
         winner, rows, reduced = self._select(current, fits, k)
         self.steps[-1].candidates = pd.DataFrame(rows)
-        self._remember_unfitted(fits, k)
+        self._remember_unfitted(fits, k, winner)
         bar = min([current.held_cost / MIN_GAIN] + ([winner.model.held_cost] if winner else []))
         if reduced is not None and reduced[1].held_cost < bar:
             self._replace(current, *reduced, winner)
@@ -368,10 +374,13 @@ class _Search:
             if not reasons:
                 winner = f
                 break
-        for row in rows.values():
+        for f in fits:
+            row = rows[f.name]
             if not row["why"]:
-                row["why"] = ("not fitted" if row["error"] else
+                row["why"] = ("not fitted" if f.model is None else
                               f"not tested: {winner.name} predicts the held-back data better" if winner else "")
+            if f.exhausted and f.model is not None:
+                row["why"] = f"{UNFINISHED}: judged at the best point it reached; " + row["why"]
         return winner, list(rows.values()), reduced
 
     def _judge(self, current: Fitted, f: CandidateFit, row: dict[str, Any], want_drop: bool = True
@@ -403,7 +412,7 @@ class _Search:
         name = winner.name
         self.say(f"step {k}: {name} accepted; converging the model with it ...")
         model, how = self.plugin.converge(winner.model, None if self.budget is None
-                                          else CONVERGE_BUDGETS * self.budget)
+                                          else CONVERGE_BUDGETS * self.budget, unfinished=winner.exhausted)
         if how:
             self.notes.append(f"step {k + 1}: {how}")
         v = verdict(current, model)
@@ -415,16 +424,19 @@ class _Search:
         self.named.append(NamedEffect(name, math.nan, (math.nan, math.nan), "", evidence + why, runner, margin))
         self.doubts[name] = _doubts(self.plugin, current, winner, fits, runner, v.gain)
         self.doubts[name] += _twin_doubt(self.plugin, winner, fits, self.budget)
+        if winner.exhausted:
+            self.doubts[name].append(f"{UNFINISHED} ({winner.evaluations:.0f} training logs simulated): it was "
+                                     "chosen at the best point that fit reached, not at its optimum")
         self._record(model, name, v.gain, {"dm_p": v.dm_p, "delta_bic": v.delta_bic, "runner_up": runner,
                                            "margin": margin})
         self.say(f"step {k + 1}: {self._gap(model)}")
         return model
 
-    def _remember_unfitted(self, fits: list[CandidateFit], k: int) -> None:
-        """A candidate that could not be fitted stays *not ruled out* until a later screen rejects it or a later
-        refit succeeds."""
+    def _remember_unfitted(self, fits: list[CandidateFit], k: int, winner: CandidateFit | None) -> None:
+        """A candidate that could not be fitted, or whose fit used up its budget before it converged and was not
+        named (``winner``), stays *not ruled out* until a later screen rejects it or a later refit succeeds."""
         for f in fits:
-            if f.model is None:
+            if f.model is None or (f.exhausted and f is not winner):
                 why = "it used up its evaluation budget" if f.exhausted else f"its fit failed ({f.error})"
                 self.unresolved[f.name] = {"step": k, "candidate": f.name, "reason": why}
                 self.say(f"candidate {f.name} could not be fitted: {why}")

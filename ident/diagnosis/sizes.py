@@ -221,7 +221,7 @@ def search_candidate(plugin: ModelPlugin, fit: CandidateFit, budget: float | Non
     candidate reached 9 % of the truth and 13.0x. A move that lowered the training cost less than ``min_gain`` times
     (the acceptance rule's practical significance) is not checked again: a smaller gain cannot change which candidate
     wins, and more probes would only spend time."""
-    if fit.model is None or at_noise(fit.model, min_gain):
+    if fit.model is None or fit.exhausted or at_noise(fit.model, min_gain):   # an unfinished fit: no budget left
         return fit
     count = [0]
 

@@ -52,11 +52,13 @@ class Fitted:
 class CandidateFit:
     """One candidate refitted (on a worker): the model with it, or why there is none.
 
-    ``exhausted``: the fit used up its evaluation budget (the candidate is then not ruled out); ``veto``: a reason
-    of the model's own not to name it even if it scores (e.g. a parameter at its bound); ``evaluations``: the
-    simulations used, in whole training logs; ``start``: where the fit started; ``size_probes``: the refits of the
-    size search that followed (``ident.diagnosis.sizes.search_candidate``), ``size_moved``: whether it moved the
-    size, ``size_unsettled``: whether it used up its rounds still moving (the refit may fit better still)."""
+    ``exhausted``: the fit used up its evaluation budget before it converged; ``model`` is then the best point it
+    simulated (None if none), judged like any other, and the candidate is not ruled out unless it is named;
+    ``veto``: a reason of the model's own not to name it even if it scores (e.g. a parameter at its bound);
+    ``evaluations``: the simulations used, in whole training logs; ``start``: where the fit started;
+    ``size_probes``: the refits of the size search that followed (``ident.diagnosis.sizes.search_candidate``),
+    ``size_moved``: whether it moved the size, ``size_unsettled``: whether it used up its rounds still moving (the
+    refit may fit better still)."""
 
     name: str
     model: Fitted | None = None
@@ -118,9 +120,10 @@ class ModelPlugin(ABC):
         """``model`` without effect ``name``, refitted from ``model``'s optimum (the drop test, the backward
         elimination)."""
 
-    def converge(self, model: Fitted, budget: float | None) -> tuple[Fitted, str]:
+    def converge(self, model: Fitted, budget: float | None, unfinished: bool = False) -> tuple[Fitted, str]:
         """The accepted model, converged further if the plug-in can (e.g. identified from scratch with the new
-        effect); returns it and a sentence on what was done. Default: as it is."""
+        effect; ``unfinished``: its refit used up its budget before it converged); returns it and a sentence on what
+        was done. Default: as it is."""
         return model, ""
 
     @abstractmethod

@@ -294,12 +294,12 @@ class TwoInertiaPlugin(ModelPlugin):
             else "the screen's Gauss-Newton step"
         try:
             fit = self._from_scratch if leaning else self._from_step
-            theta = fit(model, effects, test, sens, meter)
+            theta, spent = fit(model, effects, test, sens, meter)
         except BudgetExceeded as exc:
             return CandidateFit(test.candidate, error=str(exc), exhausted=True, evaluations=meter.used / self.stop,
                                 start=start)
         fitted = self.evaluate(effects, theta, st.base, st.scales, sens=sens)
-        return CandidateFit(test.candidate, fitted, evaluations=meter.used / self.stop, start=start)
+        return CandidateFit(test.candidate, fitted, evaluations=meter.used / self.stop, start=start, exhausted=spent)
 
     @staticmethod
     def _start(model: Fitted, test: ScoreTest, sens: Sensitivity) -> np.ndarray:
@@ -309,7 +309,9 @@ class TwoInertiaPlugin(ModelPlugin):
         return np.clip(x, [c.lo for c in coords], [c.hi for c in coords])
 
     def _from_step(self, model: Fitted, effects: tuple[str, ...], test: ScoreTest, sens: Sensitivity,
-                   meter: EvaluationBudget) -> np.ndarray:
+                   meter: EvaluationBudget) -> tuple[np.ndarray, bool]:
+        """The refit from the screen's step: (its unknowns, whether it used up its budget first). A fit that did
+        returns the best point it simulated, to be judged like any other (``CandidateFit.exhausted``)."""
         st = model.state
         x = self._start(model, test, sens)
         problem = ModelProblem(self.full, st.base, _fmu_effects(effects), st.scales, self.stop, self.sigma,
@@ -318,12 +320,19 @@ class TwoInertiaPlugin(ModelPlugin):
             lo, hi = problem.bounds()
             head = min((np.clip(h, lo, hi) for h in _heads(st.theta, test.step, x, coordinates(
                 test.candidate, st.scales, sens.get(test.candidate)))), key=problem.cost)
-            return _ipopt_or_best(problem, head, lo, hi)
+            try:
+                return _ipopt_or_best(problem, head, lo, hi), False
+            except BudgetExceeded:
+                if problem.best is None:
+                    raise
+                return problem.best[1], True
         finally:
             problem.close()
 
     def _from_scratch(self, model: Fitted, effects: tuple[str, ...], test: ScoreTest, sens: Sensitivity,
-                      meter: EvaluationBudget) -> np.ndarray:
+                      meter: EvaluationBudget) -> tuple[np.ndarray, bool]:
+        """The refit identified from scratch (``fit_pipeline``'s continuation); (its unknowns, False): a budget used
+        up there raises."""
         st = model.state
         x = self._start(model, test, sens)
         coords = coordinates(test.candidate, st.scales, sens.get(test.candidate))
@@ -335,7 +344,7 @@ class TwoInertiaPlugin(ModelPlugin):
                                                ModelProblem.maker(_fmu_effects(effects), st.scales, meter, sens),
                                                np.unique(np.array(rows), axis=0))
         problem.close()
-        return theta
+        return theta, False
 
     def _flexibility(self) -> CandidateFit:
         try:
@@ -379,11 +388,14 @@ class TwoInertiaPlugin(ModelPlugin):
             problem.close()
         return self.evaluate(effects, theta, st.base, st.scales, sens=st.sens)
 
-    def converge(self, model: Fitted, budget: float | None) -> tuple[Fitted, str]:
+    def converge(self, model: Fitted, budget: float | None, unfinished: bool = False) -> tuple[Fitted, str]:
         """Identified from scratch with its effects when the accepted model leans on a parameter bound (it was
-        fitted from a model that could not fit the log inside the physical range); else as refitted."""
-        if model.state.rigid or model.effects == (FLEXIBILITY,) or not at_bound(model.state.theta):
+        fitted from a model that could not fit the log inside the physical range); else refitted on from where it
+        stopped when its refit used up its budget first (``unfinished``); else as refitted."""
+        if model.state.rigid or model.effects == (FLEXIBILITY,):
             return self.resimulated(model), ""
+        if not at_bound(model.state.theta):
+            return self._continued(model, budget) if unfinished else (self.resimulated(model), "")
         st = model.state
         meter = EvaluationBudget(None if budget is None else budget * self.stop)
         try:
@@ -400,6 +412,15 @@ class TwoInertiaPlugin(ModelPlugin):
             return fresh, (f"identified from scratch with {' + '.join(model.effects)}: training cost "
                            f"{model.train_cost:.6g} -> {fresh.train_cost:.6g}")
         return self.resimulated(model), ""
+
+    def _continued(self, model: Fitted, budget: float | None) -> tuple[Fitted, str]:
+        """``model`` refitted on from its point, within ``budget``: the next screen is a score test at the current
+        model's optimum, and a model stopped short of it leaves gradients that the candidates' scores would take up."""
+        more = self._fit_from(model, model.effects, model.state.theta, budget)
+        if not more.train_cost < model.train_cost:
+            return self.resimulated(model), ""
+        return more, (f"its refit had used up its budget; refitted on from where it stopped: training cost "
+                      f"{model.train_cost:.6g} -> {more.train_cost:.6g}")
 
     # ---------------------------------------------------------------------------------------- naming ----------
 
