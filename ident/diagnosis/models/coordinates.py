@@ -98,12 +98,21 @@ class LogScales:
                 f"rad/s, load {self.v_l:.4g} rad/s; load slip speed percentiles 5/25/50/75/95 %: {pct} rad/s",
                 f"deflection scale d95 (95th percentile of |deflection| of the base model): {self.d95:.4g} rad; "
                 f"spring torque scale K_s d95 = {self.K_s * self.d95:.4g} N.m",
-                "kinematic error: " + ("its 2/rev and 4/rev harmonics fitted" if 4 in self.kinematic_harmonics else
-                                       "its 2/rev alone fitted (the 4/rev cannot be told from it over the motor "
-                                       "angles of this log: the amplitude quoted is the 2/rev that reproduces the "
-                                       "error's shape there, and may differ from the drive's 2/rev)")
-                + f"; the 2/rev keeps {self.harmonic_separation:.3g} of its information beside the 4/rev (the 4/rev "
-                  "is fitted from 0.5)"]
+                "kinematic error: " + (f"its 2/rev alone fitted; {self.kinematic_doubt}" if self.kinematic_doubt else
+                                       "its 2/rev and 4/rev harmonics fitted (the 2/rev keeps "
+                                       f"{self.harmonic_separation:.3g} of its information beside the 4/rev, which "
+                                       "is fitted from 0.5)")]
+
+    @property
+    def kinematic_doubt(self) -> str:
+        """Why a kinematic error's quoted size may not be the drive's 2/rev ('' where the 4/rev is fitted beside
+        it): the derivations and a named error's doubts say it in these words."""
+        if 4 in self.kinematic_harmonics:
+            return ""
+        return (f"its size is the 2/rev alone: over this log's motor angles the 4/rev cannot be told from it (the "
+                f"2/rev keeps {self.harmonic_separation:.2g} of its information beside it; the 4/rev is fitted from "
+                "0.5), so the amplitude is the 2/rev that reproduces the local shape, not necessarily the drive's; "
+                "record a motor move over a few turns")
 
 
 def harmonic_separation(q_m: np.ndarray) -> float:

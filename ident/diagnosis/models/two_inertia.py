@@ -685,20 +685,17 @@ def _size_doubt(name: str, scales: LogScales) -> str:
     reproduces the local shape, not the drive's 2/rev, and its interval knows nothing of the 4/rev (measured on the
     independent generator's default-design logs: 76-77 % high on one drive's three, two of them with confident
     intervals that missed the truth)."""
-    if name != "kinematic_error" or 4 in scales.kinematic_harmonics:
-        return ""
-    return (f"its size is the 2/rev alone: over this log's motor angles the 4/rev cannot be told from it (the 2/rev "
-            f"keeps {scales.harmonic_separation:.2g} of its information beside it), so the amplitude is the 2/rev that "
-            "reproduces the local shape, not necessarily the drive's; record a motor move over a few turns")
+    return scales.kinematic_doubt if name == "kinematic_error" else ""
 
 
 def _magnitude_gradient(name: str, coords: list[Any], x: np.ndarray) -> np.ndarray:
     """d(magnitude)/dx of effect ``name`` (for the delta method)."""
-    if name == "kinematic_error":   # A = hypot(c, s); the 4/rev coordinates do not enter it
-        c, s = coords[0].value(x[0]), coords[1].value(x[1])
-        A = math.hypot(c, s) or 1e-300
-        return np.array([c / A * coords[0].scale, s / A * coords[1].scale] + [0.0] * (len(coords) - 2))
     g = np.zeros(len(coords))
+    if name == "kinematic_error":   # A = hypot(c, s) of the 2/rev (``SIZE_COORDS``); the 4/rev does not enter it
+        own = [i for i, c in enumerate(coords) if c.name in SIZE_COORDS[name]]
+        v = np.array([coords[i].value(x[i]) for i in own])
+        g[own] = v / (math.hypot(*v) or 1e-300) * np.array([coords[i].scale for i in own])
+        return g
     g[0] = coords[0].scale * (1.0 if name != "asymmetric_friction" else math.copysign(1.0, x[0] or 1.0))
     return g
 
