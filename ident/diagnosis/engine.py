@@ -14,10 +14,11 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    (``plugin.refit``), each within its evaluation budget (simulations, never seconds), then its size searched on
    the same worker (``sizes.search_candidate``: a stalled refit would lose to a rival it should beat). A candidate
    that runs out of budget is judged at the best point it reached: that point is a model like any other, and if it
-   passes the rule the effect is there (measured on two-effect logs of the independent generator: the one missing
-   effect of two logs ran out at step 2, a kinematic error and a Stribeck friction, and was never named). It is
-   then named tentatively and its model refitted on from there (``plugin.converge``); if it is not named it is *not
-   ruled out*: no name of the diagnosis is then more than tentative.
+   passes the rule the effect is there (measured on a two-effect log of the independent generator, viscous load and
+   an exponential Stribeck: the Stribeck refit ran out at step 2 with a 2.28x held-back gain and was never named;
+   judged there, it is, and the kinematic error that had stood in for it is removed backwards). It is then named
+   tentatively and its model refitted on from there (``plugin.converge``); if it is not named it is *not ruled
+   out*: no name of the diagnosis is then more than tentative.
 5. **Accept** the refitted candidate with the lowest held-back cost when it passes the one acceptance rule every
    effect (flexibility included) must pass: the held-back cost falls by more than ``MIN_GAIN``, a one-sided
    Diebold-Mariano test of the held-back losses gives p < ``DM_LEVEL``, the training BIC falls, its magnitude's
