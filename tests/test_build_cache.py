@@ -149,7 +149,8 @@ def test_signal_during_a_build_leaves_nothing_behind(tmp_path: Path, signum: int
         _, err = proc.communicate(timeout=60)
     finally:
         proc.kill()
-    assert proc.returncode != 0
-    assert not list(tmpdir.glob("hdrive-build-*")), list(tmpdir.iterdir())
-    assert not [p for p in cache.rglob("*") if p.name.endswith(".tmp")] if cache.exists() else True
-    assert not [p for p in cache.iterdir() if p.name.startswith("fmi2-")] if cache.exists() else True
+    left = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))  # what a failure reports
+    assert proc.returncode != 0, (proc.returncode, err, left)
+    assert not list(tmpdir.glob("hdrive-build-*")), (err, left)
+    assert not [p for p in cache.rglob("*") if p.name.endswith(".tmp")] if cache.exists() else True, (err, left)
+    assert not [p for p in cache.iterdir() if p.name.startswith("fmi2-")] if cache.exists() else True, (err, left)
