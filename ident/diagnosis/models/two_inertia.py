@@ -320,12 +320,7 @@ class TwoInertiaPlugin(ModelPlugin):
             lo, hi = problem.bounds()
             head = min((np.clip(h, lo, hi) for h in _heads(st.theta, test.step, x, coordinates(
                 test.candidate, st.scales, sens.get(test.candidate)))), key=problem.cost)
-            try:
-                return _ipopt_or_best(problem, head, lo, hi), False
-            except BudgetExceeded:
-                if problem.best is None:
-                    raise
-                return problem.best[1], True
+            return _spent_or_best(problem, head, lo, hi)
         finally:
             problem.close()
 
@@ -381,9 +376,9 @@ class TwoInertiaPlugin(ModelPlugin):
                 lo, hi = problem.bounds()
             start = np.clip(head, lo, hi) if clip else head
             try:
-                theta = _ipopt_or_best(problem, start, lo, hi, max_iter)
+                theta, _ = _spent_or_best(problem, start, lo, hi, max_iter)
             except BudgetExceeded:
-                theta = problem.best[1] if problem.best is not None else start
+                theta = start
         finally:
             problem.close()
         return self.evaluate(effects, theta, st.base, st.scales, sens=st.sens)
@@ -635,6 +630,18 @@ def _ipopt_or_best(problem: ModelProblem, head: np.ndarray, lo: np.ndarray, hi: 
         raise BudgetExceeded(f"the fit used up its budget of {problem.budget.limit / problem.stop:.4g} simulations "
                              "before it converged")
     return problem.best[1] if problem.best is not None else theta
+
+
+def _spent_or_best(problem: ModelProblem, head: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                   max_iter: int = 500) -> tuple[np.ndarray, bool]:
+    """``_ipopt_or_best``, and whether its budget ran out first: then the best point it simulated instead (a fit
+    cut short keeps what it reached; ``BudgetExceeded`` only when it simulated none)."""
+    try:
+        return _ipopt_or_best(problem, head, lo, hi, max_iter), False
+    except BudgetExceeded:
+        if problem.best is None:
+            raise
+        return problem.best[1], True
 
 
 def _carried(model: Fitted, name: str) -> tuple[str, float] | None:
