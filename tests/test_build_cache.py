@@ -131,20 +131,29 @@ def test_unwritable_cache_builds_into_a_temporary_folder(cache: Path, tmp_path: 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
 def test_signal_during_a_build_leaves_nothing_behind(tmp_path: Path, signum: int) -> None:
-    """Interrupted while the compiler runs: no hdrive-build-* folder, no staging folder, no .tmp file."""
-    cache, tmpdir = tmp_path / "cache", tmp_path / "tmp"
+    """Interrupted while the compiler runs: no hdrive-build-* folder, no staging folder, no .tmp file.
+
+    The compiler is a stand-in (``CC``) that says it started and then waits to be killed, so the signal always
+    lands while it runs. With the real compiler (about 0.1 s here) the test's own wait could outlast the build on a
+    loaded machine: it failed once that way in a full run, the build complete before the signal came."""
+    cache, tmpdir, started = tmp_path / "cache", tmp_path / "tmp", tmp_path / "compiler-started"
     tmpdir.mkdir()
+    fake_cc = tmp_path / "bin" / "cc"
+    fake_cc.parent.mkdir()
+    fake_cc.write_text(f"#!/bin/sh\n: > '{started}'\nexec sleep 120\n")
+    fake_cc.chmod(0o755)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
-           "HDRIVE_CACHE": str(cache), "TMPDIR": str(tmpdir)}
+           "HDRIVE_CACHE": str(cache), "TMPDIR": str(tmpdir), "CC": str(fake_cc)}
     code = "from fmu_build import build_fmu; build_fmu(2, sanitize=False)"
     proc = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 120  # test orchestration only: wait for the compiler to be running
-        while not list(tmpdir.glob("hdrive-build-*/binaries")) and proc.poll() is None:
+        while not started.exists() and proc.poll() is None:
             assert time.monotonic() < deadline, "the build never started"
             time.sleep(0.005)
-        assert proc.poll() is None, f"the build finished before the signal: {proc.communicate()}"
+        assert proc.poll() is None, f"the build ended before the signal: {proc.communicate()}"
+        assert list(tmpdir.glob("hdrive-build-*/binaries")), "the compiler ran outside a build folder"
         proc.send_signal(signum)
         _, err = proc.communicate(timeout=60)
     finally:
