@@ -588,13 +588,13 @@ def _first_window(log: DriveLog, sigma_l: float, f_peak: float, periods: float, 
                   ) -> int:
     """End of the first fitting window: the load's first motion plus ``periods`` ringing periods (the motor's first
     motion where the load never leaves its noise; ``window_from`` "either": the first motion of either body, the
-    start's second path). Short on purpose: the start's few-% error in the ringing
-    frequency must not add up to a whole period of phase inside it.
+    start's second path). Short on purpose: the start's few-% error in the ringing frequency must not add up to a
+    whole period of phase inside it.
 
     Counted from the load, not from whichever moves first: the window is there for the load's ringing. Where
     friction holds the load while the motor's first pulses move it, a window counted from the motor ends before the
     load has moved, and a model that moves nothing fits it to the noise (any stiffness, friction at the box's top).
-    Measured on the independent generator's default-design logs of three new drives with f_l* 0.65-0.79: the load
+    Measured on the independent generator's default-design logs of two new drives with f_l* 0.79 and 0.65: the load
     first moved 0.31 s after the motor, the window ended before that, and the fit settled at 306x and 3720x the
     noise, K* 2.7x and 75x the truth."""
     load = np.flatnonzero(np.abs(log.load_pos_rad - log.load_pos_rad[0]) > 20 * sigma_l)
@@ -669,7 +669,10 @@ def fit_tracks(log: DriveLog, base: DriveParams, make: Callable[..., OutputError
     try:
         second = _one_path(log, base, make, extra, dict(start), START_PATHS[1], progress, verbose,
                            first_window_periods, max_iter, stage_iter, growth)
-    except BaseException:
+    except Exception as exc:  # noqa: BLE001 - the first path's result stands; the failure is recorded
+        first[2]["other_path_error"] = f"{type(exc).__name__}: {exc}"
+        return first
+    except BaseException:   # Ctrl-C, SIGTERM: the first path's FMU instance goes too
         problem.close()
         raise
     costs = (problem.cost(tracks[0].theta), problem.cost(second[0][0].theta))
@@ -682,7 +685,7 @@ def fit_tracks(log: DriveLog, base: DriveParams, make: Callable[..., OutputError
 
 
 def _one_path(log: DriveLog, base: DriveParams, make: Callable[..., OutputError], extra: np.ndarray,
-              start: dict[str, Any], path: "StartPath", progress: bool, verbose: bool, periods: float,
+              start: dict[str, Any], path: StartPath, progress: bool, verbose: bool, periods: float,
               max_iter: int, stage_iter: int, growth: float
               ) -> tuple[list[Track], OutputError, dict[str, Any], list[dict[str, Any]]]:
     """``fit_tracks`` along one start path (``start`` is this path's copy: the first stage records in it)."""
