@@ -1232,9 +1232,9 @@ def build_result(log: DriveLog, problem: OutputError, tracks: list[Track], start
         v = float(math.exp(theta[i]))
         half = min(Z95 * float(std_ln[i]), 700.0)  # a parameter the log does not determine: (0, inf), not a crash
         # the competing optima the data do not reject (``_settle``) lie inside: the log does not tell them apart
-        lo = min([theta[i] - half] + [t.theta[i] for t in tracks[1:]])
-        hi = max([theta[i] + half] + [t.theta[i] for t in tracks[1:]])
-        estimates[name] = Estimate(v, (float(math.exp(lo)), float(math.exp(hi))), v * float(std_ln[i]),
+        down = max([half] + [theta[i] - t.theta[i] for t in tracks[1:]])
+        up = max([half] + [t.theta[i] - theta[i] for t in tracks[1:]])
+        estimates[name] = Estimate(v, (v * math.exp(-down), v * math.exp(up)), v * float(std_ln[i]),
                                    verdicts[name][0], verdicts[name][1], name in bound)
     warnings = [c["detail"] for c in data_checks if c["status"] == "warning"]
     warnings += _warnings(estimates, fit, bound, problem.y_l.size, fix)
