@@ -599,13 +599,12 @@ def _first_window(log: DriveLog, sigma_l: float, f_peak: float, periods: float, 
     noise, K* 2.7x and 75x the truth."""
     load = np.flatnonzero(np.abs(log.load_pos_rad - log.load_pos_rad[0]) > 20 * sigma_l)
     motor = np.flatnonzero(np.abs(log.motor_pos_rad - log.motor_pos_rad[0]) > 0)
-    moved = load if load.size else motor
-    if window_from == "either" and load.size and motor.size:
-        moved = np.array([min(load[0], motor[0])])
+    # the load's first motion; the motor's where the load never moves; the earlier of the two for "either"
+    moved = load[:1] if window_from == "load" and load.size else np.concatenate([load[:1], motor[:1]])
     if moved.size == 0:
         raise IdentificationError("nothing moves in this log: neither the motor encoder nor the load sensor "
                                   "changes beyond its noise; K*, J_l* and f_l* cannot be estimated")
-    return int(min(log.n, max(200, moved[0] + periods * log.meta.sample_rate_hz / f_peak)))
+    return int(min(log.n, max(200, moved.min() + periods * log.meta.sample_rate_hz / f_peak)))
 
 
 def _start(log: DriveLog, base: DriveParams) -> dict[str, Any]:
@@ -798,7 +797,7 @@ def _distinct_best(grid: list[tuple[float, np.ndarray]], count: int) -> list[np.
 
 def _best_candidate_grid(log: DriveLog, base: DriveParams, start: dict[str, Any], sigma: float,
                          make: Callable[..., OutputError], extras: np.ndarray, periods: float,
-                         path: StartPath = StartPath("load", True)) -> tuple[list[tuple[float, np.ndarray]], int]:
+                         path: StartPath) -> tuple[list[tuple[float, np.ndarray]], int]:
     """The grid (``_grid``) of each candidate frequency on its own first window (``_first_window``, counted as
     ``path`` says); with several candidates, the winner's (``_candidate_winner``) grid and window are returned."""
     results = []
@@ -843,7 +842,7 @@ def _candidate_winner(log: DriveLog, base: DriveParams, sigma: float, make: Call
             winners[i] = int(np.argmin([min(common.cost(th) for _, th in pts) for pts in best_three]))
         finally:
             common.close()
-    own = [k for k, w in winners.items() if w == k and own_window]
+    own = [k for k, w in winners.items() if w == k]   # the second path judged only the longest window
     if own:
         return max(own, key=lambda k: stops[k])
     return winners[longest]
@@ -867,8 +866,7 @@ def _grid_costs(problem: OutputError, base: DriveParams, start: dict[str, Any], 
 
 def _first_stage(log: DriveLog, base: DriveParams, start: dict[str, Any], periods: float, sigma: float,
                  max_iter: int, make: Callable[..., OutputError], extra: np.ndarray, verbose: bool,
-                 stages: list[dict[str, Any]], path: StartPath = StartPath("load", True)
-                 ) -> tuple[list[Track], float, int]:
+                 stages: list[dict[str, Any]], path: StartPath) -> tuple[list[Track], float, int]:
     """The first window: grid (``_best_candidate_grid``), IPOPT from the best distinct grid points -- at least
     ``MIN_STARTS``, more (up to ``MAX_STARTS``) until an optimum explains the window down to its noise
     (``at_noise``; the grid's cost at its coarse points is a poor guide to the basins: measured on a PD log, the
