@@ -216,6 +216,20 @@ def test_candidate_frequency_is_judged_on_its_own_window(seed: int, kind: str, t
     assert fit.identifiable, fit.warnings
 
 
+def test_a_drift_at_the_bands_edge_is_no_trusted_peak(tmp_path) -> None:
+    """A PD-step log (7 s at 5 kHz; the training part of a 10 s diagnosis log) of a drive ringing at 138.5 Hz: the
+    free-ringing segments' largest bin is the band's lowest, 2.14 Hz, on the motor's creep within a count (no local
+    maximum), and the longest segment spans 2.1 of its periods. Trusted alone as resolved, it ended the fit at 18000x
+    the noise. Now it is no peak (``start.resolved_peak``): the largest local maximum, 137.5 Hz, is a candidate too,
+    and the fit is within 3 bound sigmas."""
+    g = identification_case(6430, "pd_steps", duration_s=7.0, rate_hz=5000.0)
+    log = read_back(g, tmp_path)
+    fit = identify(log)
+    assert not fit.start["frequency_trusted"]
+    assert any(abs(f / 138.5 - 1) < 0.02 for f in fit.start["candidates_hz"]), fit.start["candidates_hz"]
+    check_log(g, fit, cramer_rao_at_truth(log, g))
+
+
 def test_second_start_path_where_the_first_misses_the_noise(tmp_path) -> None:
     """Suite log 4231 (default design, 4 s at 4 kHz): the first start path (``identify.START_PATHS``: the window from
     the load's first motion, three samples after the motor's) leads the fit to 12.6x the noise, K* 1.4 % off; the

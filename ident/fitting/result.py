@@ -36,6 +36,15 @@ def at_bound(theta: np.ndarray) -> list[str]:
     return [name for i, name in enumerate(NAMES) if min(theta[i] - lo[i], hi[i] - theta[i]) < AT_BOUND]
 
 
+def larger_variances(sandwich: np.ndarray, noise_only: np.ndarray) -> np.ndarray:
+    """Per parameter the larger of the two variances, with the sandwich's correlations: the covariance behind the
+    reported intervals. Symmetric and positive semi-definite like the sandwich (a row-wise choice between the two
+    matrices would be neither), so a Wald statistic or a regression along the valley can use it."""
+    s = np.sqrt(np.maximum(np.diag(sandwich), np.diag(noise_only)))
+    d = np.sqrt(np.maximum(np.diag(sandwich), 1e-300))
+    return sandwich / np.outer(d, d) * np.outer(s, s)
+
+
 @dataclass
 class Estimate:
     """A parameter estimate with its 95 % confidence interval and its identifiability verdict."""
@@ -104,9 +113,7 @@ class TwoInertiaFit:
     def cov_reported(self) -> np.ndarray:
         """The covariance behind the reported intervals: per parameter the larger of the two variances, with the
         sandwich's correlations."""
-        s = np.sqrt(np.maximum(np.diag(self.cov_sandwich), np.diag(self.cov_noise_only)))
-        d = np.sqrt(np.maximum(np.diag(self.cov_sandwich), 1e-300))
-        return self.cov_sandwich / np.outer(d, d) * np.outer(s, s)
+        return larger_variances(self.cov_sandwich, self.cov_noise_only)
 
     @property
     def correlation(self) -> pd.DataFrame:

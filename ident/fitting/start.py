@@ -19,13 +19,15 @@ grew with rows x segments, the superlinear memory of issue 21).
 The spectral peak of free ringing is the start's frequency (``frequency_trusted``) when it stands clear of the noise
 (``MIN_CONTRAST``) and either the least-squares frequency agrees with it within ``CONSISTENT_W2`` (``consistent``;
 their disagreement is then the uncertainty the first grid spans, ``w_l2_spread``: a PD log had 1.23 in w_l^2, the
-peak 19 % below the truth) or it comes from several segments over at least two of its periods (``MIN_SEGMENTS``,
+peak 19 % below the truth) or it is a peak (a local maximum, not the band's lowest bin on a rising drift) that
+comes from several segments over at least two of its periods (``MIN_SEGMENTS``,
 ``MIN_CONTRAST``, ``MIN_PERIODS``; a pulse train every 56 ms on a 17.7 Hz ringing showed a resolution-bound peak at
 12.5 Hz; the Savitzky-Golay derivatives lose accuracy below ~16 samples per period -- 8.5 samples gave 0.63 of w_l^2
 -- while the peak stays right). The least-squares decay is used only when consistent; otherwise the first window's
 grid spans the friction widely. An untrusted peak (one short segment at 1 kHz read 374 Hz for a 113 Hz ringing)
 stays one candidate among those below, with the least-squares frequency; when it lies below what the segments
-resolve (fewer than ``MIN_PERIODS`` periods in the longest), the largest peak above that is one too
+resolve (fewer than ``MIN_PERIODS`` periods in the longest) or is the band's lowest bin, the largest local maximum
+above that is one too
 (``resolved_peak``: a ringing that friction damps within a few periods sits under the segments' slow settling).
 When no segment qualifies (a chirp, a log that never lets the motor rest), the spectral peaks of the whole log are
 the candidates (``candidates_hz``, ``whole_log_candidates``) that the first window's grid scans: the load's velocity
@@ -229,30 +231,36 @@ def _ls_ringing(log: DriveLog, segs: list[tuple[int, int]], f_peak: float, sigma
 
 
 def _verdicts(log: DriveLog, segs: list[tuple[int, int]], f_peak: float | None, contrast: float,
-              w2_ls: float) -> tuple[bool, bool]:
+              w2_ls: float, resolved: float | None) -> tuple[bool, bool]:
     """(consistent, trusted): the spectral and least-squares frequencies agree; the spectral peak can be trusted
-    (clear of the noise, and either consistent or resolved over ``MIN_PERIODS`` in ``MIN_SEGMENTS`` segments)."""
+    (clear of the noise, and either consistent or a peak the segments resolve, ``resolved`` None, in
+    ``MIN_SEGMENTS`` segments)."""
     consistent = (f_peak is not None and w2_ls > 0 and
                   abs(w2_ls / (2 * math.pi * f_peak) ** 2 - 1) <= CONSISTENT_W2)
-    longest = max((e - s for s, e in segs), default=0) / log.meta.sample_rate_hz
-    resolved = f_peak is not None and longest * f_peak >= MIN_PERIODS
-    trusted = f_peak is not None and contrast >= MIN_CONTRAST and (consistent or (resolved and
+    trusted = f_peak is not None and contrast >= MIN_CONTRAST and (consistent or (resolved is None and
                                                                               len(segs) >= MIN_SEGMENTS))
     return consistent, trusted
 
 
 def resolved_peak(segments: list[np.ndarray], rate_hz: float, f_peak: float | None) -> float | None:
     """The segments' largest spectral peak (a local maximum) among the frequencies whose ``MIN_PERIODS`` periods
-    fit in the longest segment, when their overall peak lies below those (else None). A segment's slow motion (the
-    load settling to a new rest while the motor is stuck) puts its power at a cycle or so per segment, above a
-    ringing that friction damps within a few periods: measured on an independent drive's 10 s log (36 segments of
-    0.2-0.3 s), the overall peak was 2.4 Hz and the ringing's 484.6 Hz (truth 484.5 Hz) the fifth-largest bin, at
-    395x the median power; without it among the candidates the fit ended trapped at 20x the stiffness, 140x the
-    noise."""
+    fit in the longest segment, when it is not their overall peak (else None): the overall peak lies below those,
+    or it is no local maximum but the band's lowest bin, on a spectrum still rising towards the drift below
+    ``MIN_FREQUENCY_HZ``.
+
+    A segment's slow motion (the load settling to a new rest while the motor is stuck, the motor creeping within a
+    count) puts its power at a cycle or so per segment, above a ringing that friction damps within a few periods:
+    measured on an independent drive's 10 s log (36 segments of 0.2-0.3 s), the overall peak was 2.4 Hz and the
+    ringing's 484.6 Hz (truth 484.5 Hz) the fifth-largest bin, at 395x the median power; without it among the
+    candidates the fit ended trapped at 20x the stiffness, 140x the noise. On another drive's PD-step log (18
+    segments, the longest 0.99 s) the overall peak was the band's lowest bin, 2.14 Hz: 2.1 periods in the longest
+    segment, it passed as resolved and was trusted alone, and the fit ended at 18000x the noise; the largest local
+    maximum is the ringing, 137.5 Hz (truth 138.5 Hz)."""
     longest = max((x.size for x in segments), default=0) / rate_hz
-    if f_peak is None or longest <= 0 or f_peak * longest >= MIN_PERIODS:
+    if f_peak is None or longest <= 0:
         return None
-    return segment_spectrum_peak(segments, rate_hz, MIN_PERIODS / longest, local=True)[0]
+    found = segment_spectrum_peak(segments, rate_hz, max(MIN_FREQUENCY_HZ, MIN_PERIODS / longest), local=True)[0]
+    return None if found == f_peak else found
 
 
 def _candidates(log: DriveLog, f_peak: float | None, w2_ls: float, trusted: bool, segments: int,
@@ -288,10 +296,11 @@ def equation_error_start(log: DriveLog, base: DriveParams) -> dict[str, float]:
     rows, window = 0, 0
     if f_peak is not None:
         w2_ls, f_over_J, rows, window = _ls_ringing(log, segs, f_peak, sigma)
-    consistent, trusted = _verdicts(log, segs, f_peak, contrast, w2_ls)
+    resolved = resolved_peak(pieces, rate, f_peak)
+    consistent, trusted = _verdicts(log, segs, f_peak, contrast, w2_ls, resolved)
     # how far the frequency may be off: the two estimates' disagreement (w_l^2), at least 6 % (+-3 % in w_l)
     spread = abs(w2_ls / (2 * math.pi * f_peak) ** 2 - 1) if consistent else 0.0
-    candidates = _candidates(log, f_peak, w2_ls, trusted, len(segs), resolved_peak(pieces, rate, f_peak))
+    candidates = _candidates(log, f_peak, w2_ls, trusted, len(segs), resolved)
     f0 = candidates[0]
     out.update(w_l2=(2 * math.pi * f0) ** 2, w_l2_ls=w2_ls, f_peak_hz=f0,
                f_l_over_J_l=f_over_J if consistent and f_over_J > 0 else math.nan,

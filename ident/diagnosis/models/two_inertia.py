@@ -43,6 +43,7 @@ from ...fitting.identify import (
 )
 from ...fitting.logs import DriveLog, LogError
 from ...fitting.noise import at_noise_level, residual_noise_std
+from ...fitting.result import larger_variances
 from ...model.effects import EFFECTS
 from ...model.params import DriveParams
 from .. import CONFIDENT_ALPHA, CONFIDENT_OVER_NOISE, MIN_GAIN, above_level
@@ -516,12 +517,12 @@ class TwoInertiaPlugin(ModelPlugin):
         return self._fit_from(model, tuple(rival if e == name else e for e in model.effects), head, budget)
 
     def _cov(self, model: Fitted) -> np.ndarray:
-        """The larger (per parameter) of the sandwich and noise-only covariances of the unknowns, as
-        ``identify`` reports (computed once per model)."""
+        """The unknowns' covariance as ``identify`` reports it (``larger_variances``: per parameter the larger of
+        the sandwich and noise-only variances, the sandwich's correlations; computed once per model)."""
         st = model.state
         if st.cov is None:
             noise, sand = self._covs(model)
-            st.cov = np.where(np.diag(sand)[:, None] >= np.diag(noise)[:, None], sand, noise)
+            st.cov = larger_variances(sand, noise)
         return st.cov
 
     def _covs(self, model: Fitted) -> tuple[np.ndarray, np.ndarray]:
