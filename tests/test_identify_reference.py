@@ -243,3 +243,25 @@ def test_second_start_path_where_the_first_misses_the_noise(tmp_path) -> None:
     assert fit.start["start_path"] == START_PATHS[1].describe()
     first, second = fit.start["other_path_costs"]
     assert second < first
+
+
+def test_the_second_start_path_is_skipped_where_it_would_repeat_the_first(monkeypatch) -> None:
+    """A diagnosis matrix log with a hidden medium viscous motor friction (3 s at 5 kHz, its training part): the
+    whole-log fit misses the noise (the effect is missing), but the second start path would pick the same window and
+    candidate (``identify._paths_differ``), so it is not run; run anyway (both paths set to the second), it ends at
+    the very same optimum."""
+    import ident.fitting.identify as identify_module
+    from ident.diagnosis.models.two_inertia import split_training, truncate_log
+    from tests.diagnosis_matrix import Case, load
+
+    log, _ = load(Case("single", 5102, "viscous_motor", "medium", "default"), duration_s=3.0, rate_hz=5000.0)
+    full, stop = split_training(log, None)
+    training = truncate_log(full, stop)
+    fit = identify(training)
+    assert fit.fit["residual_over_noise"] > 1.1
+    assert fit.start["other_path"].startswith("not run") and "other_path_costs" not in fit.start
+    second = identify_module.START_PATHS[1]
+    monkeypatch.setattr(identify_module, "START_PATHS", (second, second))
+    again = identify(training)
+    assert again.start["start_path"] == second.describe()
+    np.testing.assert_array_equal(again.theta, fit.theta)

@@ -661,7 +661,10 @@ def fit_tracks(log: DriveLog, base: DriveParams, make: Callable[..., OutputError
                       max_iter, stage_iter, growth)
     tracks, problem = first[0], first[1]
     settled = at_noise(problem, tracks[0].theta) and tracks[0].info.get("status") in CONVERGED
-    if not other_path or settled or not _paths_differ(log, start, first_window_periods):
+    if not other_path or settled:
+        return first
+    if not _paths_differ(log, first[2], first_window_periods):
+        first[2]["other_path"] = "not run: it would choose the first path's window and candidate"
         return first
     say(progress, "  the whole-log fit stays above the noise or stopped at its iteration limit: the start's other "
                   "path (" + START_PATHS[1].describe() + ") ...")
@@ -703,13 +706,18 @@ def _one_path(log: DriveLog, base: DriveParams, make: Callable[..., OutputError]
         raise
 
 
-def _paths_differ(log: DriveLog, start: dict[str, Any], periods: float) -> bool:
-    """Whether the start's two paths (``START_PATHS``) choose differently on ``log``: several candidate frequencies,
-    or a first window that ends elsewhere."""
-    if len(start["candidates_hz"]) > 1:
-        return True
-    f, sigma = start["candidates_hz"][0], start["sigma_start_rad"]
-    return len({_first_window(log, sigma, f, periods, p.window_from) for p in START_PATHS}) > 1
+def _paths_differ(log: DriveLog, first: dict[str, Any], periods: float) -> bool:
+    """Whether the start's second path (``START_PATHS``) would choose differently from the first on ``log``
+    (``first``: the first path's start, with the windows and winners ``_best_candidate_grid`` recorded). It would
+    not where every candidate's first window ends at the same sample counted its way, and the candidate it picks
+    (the best on the longest window, unless it too judges each on its own) is the first path's: it would then fit
+    the same grid on the same window and repeat the first path to the last digit (measured on the diagnosis matrix's
+    166 logs: where both paths ran, 36 ended at whole-log costs equal to the last digit, 62 within 2e-6)."""
+    other, sigma = START_PATHS[1], first["sigma_start_rad"]
+    same_windows = all(_first_window(log, sigma, f, periods, other.window_from) == stop
+                       for f, stop in first["first_windows"])
+    pick = first["f_peak_hz"] if other.own_window else first["longest_window_winner_hz"]
+    return not (same_windows and pick == first["f_peak_hz"])
 
 
 def fit_pipeline(log: DriveLog, base: DriveParams, make: Callable[..., OutputError], extra: np.ndarray, *,
@@ -799,7 +807,10 @@ def _best_candidate_grid(log: DriveLog, base: DriveParams, start: dict[str, Any]
                          make: Callable[..., OutputError], extras: np.ndarray, periods: float,
                          path: StartPath) -> tuple[list[tuple[float, np.ndarray]], int]:
     """The grid (``_grid``) of each candidate frequency on its own first window (``_first_window``, counted as
-    ``path`` says); with several candidates, the winner's (``_candidate_winner``) grid and window are returned."""
+    ``path`` says); with several candidates, the winner's (``_candidate_winner``) grid and window are returned.
+    Records in ``start`` each candidate's window (``first_windows``: (frequency, end)) and the candidate that fits
+    the longest of them best (``longest_window_winner_hz``), from which ``_paths_differ`` tells whether the other
+    path would choose the same."""
     results = []
     for f_hz in start["candidates_hz"]:
         stop = _first_window(log, sigma, f_hz, periods, path.window_from)
@@ -808,8 +819,12 @@ def _best_candidate_grid(log: DriveLog, base: DriveParams, start: dict[str, Any]
             results.append((f_hz, grid, stop))
     if not results:
         raise IdentificationError("the FMU cannot simulate any start of the first window's grid")
+    start["first_windows"] = [(f, stop) for f, _, stop in results]
+    start["longest_window_winner_hz"] = results[0][0]
     if len(results) > 1:
-        results = [results[_candidate_winner(log, base, sigma, make, results, path.own_window)]]
+        k, on_longest = _candidate_winner(log, base, sigma, make, results, path.own_window)
+        start["longest_window_winner_hz"] = results[on_longest][0]
+        results = [results[k]]
     f_hz, grid, stop = results[0]
     start["f_peak_hz"] = f_hz
     return grid, stop
@@ -817,10 +832,11 @@ def _best_candidate_grid(log: DriveLog, base: DriveParams, start: dict[str, Any]
 
 def _candidate_winner(log: DriveLog, base: DriveParams, sigma: float, make: Callable[..., OutputError],
                       results: list[tuple[float, list[tuple[float, np.ndarray]], int]], own_window: bool = True
-                      ) -> int:
-    """Index of the winning candidate frequency: of those whose best three grid points fit their own first window
-    better than every other candidate's do, the one with the longest window; where none does, or ``own_window`` is
-    False (the start's second path), the best on the longest window.
+                      ) -> tuple[int, int]:
+    """(index of the winning candidate frequency, index of the best on the longest window): the winner is, of the
+    candidates whose best three grid points fit their own first window better than every other candidate's do, the
+    one with the longest window; where none does, or ``own_window`` is False (the start's second path), the best on
+    the longest window.
 
     Why: costs on windows of different lengths do not compare (a fast candidate's short window is easy to fit), so
     the candidates meet on common windows, and each window judges some of them unfairly. A candidate's own window
@@ -843,9 +859,7 @@ def _candidate_winner(log: DriveLog, base: DriveParams, sigma: float, make: Call
         finally:
             common.close()
     own = [k for k, w in winners.items() if w == k]   # the second path judged only the longest window
-    if own:
-        return max(own, key=lambda k: stops[k])
-    return winners[longest]
+    return (max(own, key=lambda k: stops[k]) if own else winners[longest]), winners[longest]
 
 
 def _grid_costs(problem: OutputError, base: DriveParams, start: dict[str, Any], f_hz: float, extras: np.ndarray
