@@ -230,8 +230,8 @@ def _ls_ringing(log: DriveLog, segs: list[tuple[int, int]], f_peak: float, sigma
     return float(coef[0]), float(coef[1]), rows, window
 
 
-def _verdicts(log: DriveLog, segs: list[tuple[int, int]], f_peak: float | None, contrast: float,
-              w2_ls: float, resolved: float | None) -> tuple[bool, bool]:
+def _verdicts(segs: list[tuple[int, int]], f_peak: float | None, contrast: float, w2_ls: float,
+              resolved: float | None) -> tuple[bool, bool]:
     """(consistent, trusted): the spectral and least-squares frequencies agree; the spectral peak can be trusted
     (clear of the noise, and either consistent or a peak the segments resolve, ``resolved`` None, in
     ``MIN_SEGMENTS`` segments)."""
@@ -297,7 +297,7 @@ def equation_error_start(log: DriveLog, base: DriveParams) -> dict[str, float]:
     if f_peak is not None:
         w2_ls, f_over_J, rows, window = _ls_ringing(log, segs, f_peak, sigma)
     resolved = resolved_peak(pieces, rate, f_peak)
-    consistent, trusted = _verdicts(log, segs, f_peak, contrast, w2_ls, resolved)
+    consistent, trusted = _verdicts(segs, f_peak, contrast, w2_ls, resolved)
     # how far the frequency may be off: the two estimates' disagreement (w_l^2), at least 6 % (+-3 % in w_l)
     spread = abs(w2_ls / (2 * math.pi * f_peak) ** 2 - 1) if consistent else 0.0
     candidates = _candidates(log, f_peak, w2_ls, trusted, len(segs), resolved)
