@@ -94,7 +94,7 @@ def summarize(rows: list[dict]) -> dict:
 def speed(cases: list[tuple[int, str]], folder: Path) -> dict:
     """Wall time of 10 s logs at 5 kHz (the same drives and excitations), and how right each fit is: a fast wrong
     answer is no speed figure (the residual over the noise, the identifier's own "does not explain" warning, the
-    errors against the generator's truth)."""
+    errors against the generator's truth, each estimate's verdict and whether its interval holds the truth)."""
     rows = []
     for seed, kind in cases:
         row = one(seed, kind, folder, 10.0, 5000.0, crb=False)
@@ -110,7 +110,9 @@ def speed(cases: list[tuple[int, str]], folder: Path) -> dict:
             "mismatch_warnings": [(r["seed"], r["kind"]) for r in ok
                                   if any("does not explain" in w for w in r["warnings"])],
             "max_abs_rel_error": {k: max((abs(r[k]["rel_error"]) for r in ok), default=math.nan) for k in NAMES},
-            "rel_errors": {f"{r['seed']}_{r['kind']}": {k: r[k]["rel_error"] for k in NAMES} for r in ok}}
+            "rel_errors": {f"{r['seed']}_{r['kind']}": {k: r[k]["rel_error"] for k in NAMES} for r in ok},
+            "verdicts": {f"{r['seed']}_{r['kind']}": {k: {"identifiable": r[k]["identifiable"],
+                                                          "covered": r[k]["covered"]} for k in NAMES} for r in ok}}
 
 
 def memory(folder: Path) -> dict:
