@@ -50,8 +50,8 @@ def test_the_reported_covariance_is_a_covariance() -> None:
     np.testing.assert_allclose(cov, cov.T)
     np.testing.assert_allclose(np.diag(cov), [4.0, 2.0, 0.5])
     assert np.linalg.eigvalsh(cov).min() >= -1e-12
-    d = np.sqrt(np.diag(cov))
-    np.testing.assert_allclose(cov / np.outer(d, d), sandwich / np.outer(*[np.sqrt(np.diag(sandwich))] * 2))
+    d, s = np.sqrt(np.diag(cov)), np.sqrt(np.diag(sandwich))
+    np.testing.assert_allclose(cov / np.outer(d, d), sandwich / np.outer(s, s))   # the sandwich's correlations
 
 
 def test_nominal_drive_within_0_1_percent(nominal_fit) -> None:
