@@ -23,6 +23,9 @@ Method (the exact model inside the fit, never a smoothed copy):
    distinct optima are carried along as competing tracks until the data reject them (likelihood ratio at 99.9 %);
    several survivors at the end mean the log does not decide between them (multi-modal). The whole-log optimum's
    initial deflection is then compared with every basin of it (``_other_basin``), and refitted from a lower one.
+   Where that optimum misses the noise or stopped at its iteration limit, steps 1-3 run again along the start's
+   second path (``START_PATHS``: another first window and candidate rule) if it would choose differently
+   (``_paths_differ``), and the lower whole-log cost wins.
 4. **Noise, uncertainty, identifiability**: one load-noise estimate (``noise.residual_noise_std``: the white part of
    the whole-log residual) weighs the rows, scales the Cramer-Rao bound, is reported as ``sigma_load_rad`` and is
    the yardstick of the model-mismatch warning. Two covariances of the log-parameters: *Cramer-Rao* ((J^T J)^-1
