@@ -72,6 +72,11 @@ def one(seed: int, kind: str, folder: Path, duration_s: float | None = None, rat
     return row
 
 
+def mismatched(rows: list[dict]) -> list[tuple[int, str]]:
+    """(seed, kind) of the fits that carry the identifier's model-mismatch warning ("does not explain")."""
+    return [(r["seed"], r["kind"]) for r in rows if any("does not explain" in w for w in r["warnings"])]
+
+
 def summarize(rows: list[dict]) -> dict:
     ok = [r for r in rows if "error" not in r]
     coverage = {}
@@ -87,8 +92,7 @@ def summarize(rows: list[dict]) -> dict:
                                                "outside": [t for t in tight if not abs(t[2]) <= 3]},
             "sigma_ratio": {"min": min(r["sigma_ratio"] for r in ok), "max": max(r["sigma_ratio"] for r in ok)},
             "not_identifiable": [(r["seed"], r["kind"]) for r in ok if not r["identifiable"]],
-            "mismatch_warnings": [(r["seed"], r["kind"]) for r in ok if any("does not explain" in w
-                                                                              for w in r["warnings"])]}
+            "mismatch_warnings": mismatched(ok)}
 
 
 def speed(cases: list[tuple[int, str]], folder: Path) -> dict:
@@ -107,8 +111,7 @@ def speed(cases: list[tuple[int, str]], folder: Path) -> dict:
             "median_cpu_s": float(np.median(cpus)), "max_cpu_s": float(np.max(cpus)), "walls_s": walls,
             "cpus_s": cpus, "errors": [(r["seed"], r["kind"], r["error"]) for r in rows if "error" in r],
             "residual_over_noise": {f"{r['seed']}_{r['kind']}": r["residual_over_noise"] for r in ok},
-            "mismatch_warnings": [(r["seed"], r["kind"]) for r in ok
-                                  if any("does not explain" in w for w in r["warnings"])],
+            "mismatch_warnings": mismatched(ok),
             "max_abs_rel_error": {k: max((abs(r[k]["rel_error"]) for r in ok), default=math.nan) for k in NAMES},
             "rel_errors": {f"{r['seed']}_{r['kind']}": {k: r[k]["rel_error"] for k in NAMES} for r in ok},
             "verdicts": {f"{r['seed']}_{r['kind']}": {k: {"identifiable": r[k]["identifiable"],
