@@ -34,7 +34,10 @@
  * An event inside a substep (a slipping body's velocity reaching 0 - with Coulomb friction or an asymmetric viscous
  * term -, a stuck body's N leaving its band, dd changing sign) is located to the last bit on the substep fraction
  * (regula falsi, then halving), each trial being one step of the method from the substep start; that very state is
- * committed and the modes are re-decided from it (no Zeno loops).
+ * committed and the modes are re-decided from it (no Zeno loops). A slipping body's velocity that passes through 0
+ * and back inside one substep (a torque step that briefly outweighs the drive) is found from the cubic through its
+ * values and accelerations at the substep's ends (fx_interior_stop), so that the result does not depend on the
+ * communication step.
  *
  * Both paths count their work: every doStep does at most HD_WORK_BUDGET evaluations of the model's equations and
  * every event advances time, so each call returns within a bounded CPU time for any step size and any state, or is
@@ -984,6 +987,45 @@ static double fx_bisect(const HDModel *m, const FxStart *st, const FxEvent *e, W
     return hi;
 }
 
+/* Where a slipping body's velocity passes through 0 and back inside a substep, so that the event function is below
+ * 0 at both ends (a torque step at the substep's start that briefly outweighs the drive: the motor stops, sticks and
+ * breaks away again within one sample). The velocity over the substep is the cubic through its values and
+ * accelerations at both ends (the right-hand side is smooth inside a substep, which spans a small part of a period);
+ * where that cubic's interior maximum of -dir v reaches 0, one step of the method to that fraction tells whether the
+ * body really stopped there. Returns the fraction (in (0, 1)) at which the event fires, or 0 where it does not; an
+ * end at which the body is accelerating away from 0 (-dir v' <= 0) with no start deceleration cannot hide one. */
+static double fx_interior_stop(const HDModel *m, const FxStart *st, const FxEvent *e, const FxState *y1, Work *work,
+                               double *g_at) {
+    int motor = e->kind == FX_MOTOR_VELOCITY;
+    double dir = motor ? m->motor_dir : m->load_dir;
+    double g0 = -dir * (motor ? st->y0.v_m : st->y0.v_l), d0 = -dir * (motor ? st->k0.v_m : st->k0.v_l) * st->len;
+    if (!(d0 > 0.0)) return 0.0; /* speeding up at the start: no stop before the end (checked there) */
+    work->used += 1; /* the derivative at the end */
+    FxState k1 = fx_deriv(m, y1);
+    double g1 = -dir * (motor ? y1->v_m : y1->v_l), d1 = -dir * (motor ? k1.v_m : k1.v_l) * st->len;
+    double c2 = 3.0 * (g1 - g0) - 2.0 * d0 - d1, c3 = 2.0 * (g0 - g1) + d0 + d1;
+    /* the cubic's derivative d0 + 2 c2 x + 3 c3 x^2 falls from d0 > 0 through 0 at its first root in (0, 1) */
+    double x = -1.0;
+    if (c3 == 0.0) {
+        if (c2 < 0.0) x = -d0 / (2.0 * c2);
+    } else {
+        double disc = c2 * c2 - 3.0 * c3 * d0;
+        if (disc >= 0.0) {
+            double r = sqrt(disc), a = (-c2 - r) / (3.0 * c3), b = (-c2 + r) / (3.0 * c3);
+            double lo = fmin(a, b), hi = fmax(a, b);
+            x = lo > 0.0 ? lo : hi;
+        }
+    }
+    if (!(x > 0.0 && x < 1.0)) return 0.0;
+    if (g0 + x * (d0 + x * (c2 + x * c3)) < 0.0) return 0.0; /* its maximum stays below 0: no stop */
+    work->used += HD_STEP_WORK + 1; /* the step to that fraction and the event function there */
+    FxState y = fx_rk6(m, st, x * st->len);
+    double g = fx_value(m, e, &y);
+    if (!fx_fires_at(e, g)) return 0.0;
+    *g_at = g;
+    return x;
+}
+
 /* Longest substep for the bodies that slip: HD_SUBSTEPS_PER_PERIOD per period of their stiffest oscillation (tangent
  * stiffness at the twist d, largest gear factor r + 2A + 4A4; a stuck body takes no part, the other rings against the spring
  * alone), at most HD_DECAY_FRACTION of a slipping body's viscous time constant J / (b (1 + |a_v|)). */
@@ -1110,9 +1152,17 @@ static HDStatus fx_do_step(HDModel *w, double h, double t0, Work *work, HDStepSt
         work->used += HD_STEP_WORK + 2 + n; /* the start's forces, the step, commit, every event function at its end */
         double theta = 1.0;
         for (int i = 0; i < n; ++i) {
-            double g1 = fx_value(w, &ev[i], &y1);
-            if (!fx_fires_at(&ev[i], g1)) continue;
-            double th = fx_bisect(w, &s0, &ev[i], work, g1);
+            double g1 = fx_value(w, &ev[i], &y1), th;
+            if (fx_fires_at(&ev[i], g1)) {
+                th = fx_bisect(w, &s0, &ev[i], work, g1);
+            } else {
+                int velocity = ev[i].kind == FX_MOTOR_VELOCITY || ev[i].kind == FX_LOAD_VELOCITY;
+                double g_x = 0.0, x = velocity ? fx_interior_stop(w, &s0, &ev[i], &y1, work, &g_x) : 0.0;
+                if (x == 0.0) continue;
+                FxStart head = s0; /* the stop lies in (0, x]: located there as at a substep's end */
+                head.len = x * s0.len;
+                th = x * fx_bisect(w, &head, &ev[i], work, g_x);
+            }
             if (which < 0 || th < theta) theta = th, which = i;
         }
         if (which < 0) {
