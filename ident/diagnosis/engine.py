@@ -673,11 +673,13 @@ def _unseen(steps: list[DiagnosisStep], named: list[NamedEffect]) -> list[str]:
     k, table = screens[-1]
     refits = steps[k].candidates
     why = dict(zip(refits.candidate, refits.why)) if "why" in refits else {}
-    names, out = {e.name for e in named}, []
+    names, out, gone = {e.name for e in named}, [], _departed(steps)
     for row in table.itertuples():
         if row.candidate in names:
             continue
-        if row.passed:
+        if row.candidate in gone:
+            out.append(f"{row.candidate} is not named: {gone[row.candidate]}")
+        elif row.passed:
             out.append(f"{row.candidate} is not named: it passed the screen at step {k} (score "
                        f"{row.lm_statistic:.4g}, p = {row.p_value:.2g}); refitted: {why.get(row.candidate, '-')}")
         elif math.isfinite(row.detectable):
@@ -689,6 +691,17 @@ def _unseen(steps: list[DiagnosisStep], named: list[NamedEffect]) -> list[str]:
                        f"{row.unit} from none (at step {k}'s model, the size the screen passes with "
                        f"{DETECTION_POWER:.0%} power and a fit of it removes the {MIN_GAIN - 1:.0%} of the cost the "
                        f"rule asks{at}){record}")
+    return out
+
+
+def _departed(steps: list[DiagnosisStep]) -> dict[str, str]:
+    """Effects named by a step and later taken out (backward elimination, exchange): how, in words."""
+    out = {}
+    for step in steps:
+        for name in step.extra.get("removed", []):
+            out[name] = "it was named, then removed by backward elimination (see the notes)"
+        if step.extra.get("exchanged"):
+            out[step.extra["exchanged"]] = f"it was named, then exchanged for {step.added} (see the notes)"
     return out
 
 
