@@ -490,7 +490,9 @@ class _Search:
 
     def _exchanged(self, current: Fitted, name: str) -> Fitted | None:
         """``current`` with ``name`` exchanged for the best candidate at the model without it, or None (no candidate
-        passes the screen there, none could be fitted within its budget, or the best does not pass the rule)."""
+        passes the screen there, none could be fitted within its budget, or the best does not pass the rule). A
+        refit that uses up its budget here is passed over, not listed as not ruled out: the forward steps judged every
+        candidate already, and this stage only looks for a better fit than the final model."""
         self.say(f"exchange: refitting the final model without {name} and its candidates there ...")
         reduced = self.plugin.resimulated(self.pool.map(_without_task, [(self.shared, current, name, self.budget)],
                                                         desc=f"without {name}")[0])
