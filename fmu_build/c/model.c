@@ -998,16 +998,16 @@ static double fx_bisect(const HDModel *m, const FxStart *st, const FxEvent *e, W
  * forces at the end, *f1, are computed once: the next substep starts from them. (The hysteresis branch's twist rate
  * could reverse and turn back likewise; checking it cost 17 % more time on a hysteresis model, with no case found
  * where it mattered, so it is left to the end's check.) */
-static double fx_interior_stop(const HDModel *m, const FxStart *st, const FxEvent *e, const FxState *y1,
+static double fx_interior_stop(const HDModel *m, const FxStart *st, const FxEvent *e, const FxState *y1, double g1,
                                FxForces *f1, int *have_f1, Work *work, double *g_at) {
     int motor = e->kind == FX_MOTOR_VELOCITY;
     double dir = motor ? m->motor_dir : m->load_dir;
     double g0 = fx_value(m, e, &st->y0), d0 = -dir * (motor ? st->k0.v_m : st->k0.v_l) * st->len;
     if (!(d0 > 0.0)) return 0.0;
-    work->used += 1; /* the function at the end (its forces: the next substep's start's, computed once) */
+    work->used += 1; /* the forces at the end (the next substep's start's, computed once) */
     if (!*have_f1) *f1 = fx_forces(m, y1), *have_f1 = 1;
     FxState k1 = fx_deriv_of(m, y1, f1);
-    double g1 = fx_value(m, e, y1), d1 = -dir * (motor ? k1.v_m : k1.v_l) * st->len;
+    double d1 = -dir * (motor ? k1.v_m : k1.v_l) * st->len;
     double c2 = 3.0 * (g1 - g0) - 2.0 * d0 - d1, c3 = 2.0 * (g0 - g1) + d0 + d1;
     /* the cubic's derivative d0 + 2 c2 x + 3 c3 x^2 falls from d0 > 0 through 0 at its first root in (0, 1) */
     double x = -1.0;
@@ -1163,8 +1163,8 @@ static HDStatus fx_do_step(HDModel *w, double h, double t0, Work *work, HDStepSt
                 th = fx_bisect(w, &s0, &ev[i], work, g1);
             } else {
                 int velocity = ev[i].kind == FX_MOTOR_VELOCITY || ev[i].kind == FX_LOAD_VELOCITY;
-                double g_x = 0.0, x = velocity ? fx_interior_stop(w, &s0, &ev[i], &y1, &f_end, &have_end, work, &g_x)
-                                               : 0.0;
+                double g_x = 0.0, x = velocity ? fx_interior_stop(w, &s0, &ev[i], &y1, g1, &f_end, &have_end,
+                                                                    work, &g_x) : 0.0;
                 if (x == 0.0) continue;
                 FxStart head = s0; /* the event lies in (0, x]: located there as at a substep's end */
                 head.len = x * s0.len;
