@@ -502,10 +502,10 @@ class _Search:
         fits = self.pool.map(_refit_task, [(self.shared, reduced, t, self.budget) for t in passing],
                              desc=f"exchanging {name}")
         ok = sorted((f for f in fits if f.model is not None and not f.exhausted), key=lambda f: f.model.held_cost)
-        v = verdict(current, ok[0].model) if ok else None
-        if v is None or not v.accepted:
+        if not ok or self._judge(current, ok[0], {}, want_drop=False)[0]:   # the loop's one acceptance rule
             return None
         best = ok[0]
+        v = verdict(current, best.model)
         model, _ = self.plugin.converge(best.model, None if self.budget is None else CONVERGE_BUDGETS * self.budget)
         runner, margin, why = _runner_up(best, fits, screen_table(tests))
         i = next(i for i, e in enumerate(self.named) if e.name == name)
