@@ -275,6 +275,20 @@ def _gather(client: Any, fn: Callable[[T], R], items: list[T], progress: bool, d
     return results
 
 
+def _start_hint(error: BaseException) -> str:
+    """What to do when the workers failed because the caller's main script runs hdrive's work at import: each worker
+    is a new process that imports the main module (multiprocessing's spawn), so the script started workers again
+    from inside a worker (measured: Dask only says "Nanny failed to start"; the cause sits deep in the chain)."""
+    seen: BaseException | None = error
+    while seen is not None:
+        if "bootstrapping phase" in str(seen):
+            return (". The workers are new processes that import your main script, and it starts hdrive's work when "
+                    "imported: put that work under `if __name__ == \"__main__\":`, or pass workers=0 to run in this "
+                    "process")
+        seen = seen.__cause__ or seen.__context__
+    return ""
+
+
 class WorkerPool:
     """One set of workers for several batches (a diagnosis runs a few per step, and starting a local cluster costs
     seconds): a local cluster of ``workers`` processes (one thread each, their scratch space in one folder removed
@@ -323,7 +337,8 @@ class WorkerPool:
         while self._starting is not None and self._starting.is_alive():
             self._starting.join(0.1)
         if self._error is not None:
-            raise BatchError(f"the local Dask workers did not start: {self._error}") from self._error
+            why = str(self._error).rstrip(".")
+            raise BatchError(f"the local Dask workers did not start: {why}{_start_hint(self._error)}") from self._error
 
     def __exit__(self, kind: object, exc: object, tb: object) -> None:
         self.close(interrupted=kind is not None)
