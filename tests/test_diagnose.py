@@ -671,7 +671,8 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
     (viscous load and an exponential Stribeck): hysteresis, named first against the base model, stood in for the
     viscous load (1.02x / 1.018x the noise with a kinematic error after it); with Stribeck in the model the viscous
     load predicts the held-back data 1.043x better and the pair reaches 0.998x the noise. A replacement that gains no
-    more than ``MIN_GAIN`` leaves the names as they were; the last name is never exchanged."""
+    more than ``MIN_GAIN`` leaves the names as they were; the last name is never exchanged; the refit without a name
+    that backward elimination has just made is not made again."""
     from ident.diagnosis.engine import _departed, _refit_task, _Say, _Search, _without_task
     from ident.diagnosis.models import CandidateFit, Magnitude
     from ident.diagnosis.result import NamedEffect
@@ -750,6 +751,16 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
             assert "exchanged for viscous_load" in _departed(search.steps)["hysteresis"]   # the report's "not named"
         else:
             assert names == ["hysteresis", "stribeck"] and out is current and not search.notes
+
+    # after backward elimination kept the model, the exchange starts from backward's own refit without each name
+    plugin = Plugin(1.043)
+    search = _Search(plugin, Pool(plugin), None, 3, _Say(False))
+    search.named = [NamedEffect(n, math.nan, (math.nan, math.nan), "", "", None, None)
+                    for n in ("hysteresis", "stribeck")]
+    current = model(("hysteresis", "stribeck"), 1.0)
+    assert search._backward(current) is current and plugin.dropped == ["hysteresis", "stribeck"]
+    search._exchange(current)
+    assert plugin.dropped == ["hysteresis", "stribeck", "viscous_load"], plugin.dropped
 
 
 def test_each_step_may_replace_its_stalled_model_twice() -> None:

@@ -197,6 +197,7 @@ class _Search:
         self.unresolved: dict[str, dict[str, Any]] = {}   # candidates not fitted and not ruled out since
         self.size_checks: dict[str, Checks] = {}   # named effect -> its size's last check (``sizes``)
         self.constancy: dict[str, Any] = {}   # the final model's constancy check (``_check_constancy``)
+        self.without: tuple[Fitted, dict[str, Fitted]] | None = None   # backward's last round: model, its reductions
 
     @property
     def shared(self) -> Any:
@@ -466,6 +467,7 @@ class _Search:
             i = int(np.argmin([m.held_cost for m in reduced]))
             v = verdict(reduced[i], current)
             if v.accepted:
+                self.without = (current, dict(zip(current.effects, reduced)))   # the exchange starts from these
                 break
             gone = current.effects[i]
             removed.append(gone)
@@ -494,8 +496,7 @@ class _Search:
         refit that uses up its budget here is passed over, not listed as not ruled out: the forward steps judged every
         candidate already, and this stage only looks for a better fit than the final model."""
         self.say(f"exchange: refitting the final model without {name} and its candidates there ...")
-        reduced = self.plugin.resimulated(self.pool.map(_without_task, [(self.shared, current, name, self.budget)],
-                                                        desc=f"without {name}")[0])
+        reduced = self.plugin.resimulated(self._without(current, name))
         names = tuple(c for c in self.plugin.candidates(reduced) if c != name)
         tests = ranked(self.plugin.screen(reduced, names))
         passing = [t for t in tests if t.passed]
@@ -523,6 +524,13 @@ class _Search:
                                                 "runner_up": runner, "margin": margin})
         self.say(f"exchange: {name} -> {best.name}: {self._gap(model)}")
         return model
+
+    def _without(self, current: Fitted, name: str) -> Fitted:
+        """``current`` refitted without ``name``: backward elimination's own refit when its last round kept
+        ``current`` (the same task on the same model: the same fit, not made twice), else refitted here."""
+        if self.without is not None and self.without[0] is current:
+            return self.without[1][name]
+        return self.pool.map(_without_task, [(self.shared, current, name, self.budget)], desc=f"without {name}")[0]
 
     def _record(self, model: Fitted, added: str | None, score: float | None, extra: dict[str, Any]) -> None:
         model = self.plugin.resimulated(model)
