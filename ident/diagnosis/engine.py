@@ -197,7 +197,7 @@ class _Search:
         self.unresolved: dict[str, dict[str, Any]] = {}   # candidates not fitted and not ruled out since
         self.size_checks: dict[str, Checks] = {}   # named effect -> its size's last check (``sizes``)
         self.constancy: dict[str, Any] = {}   # the final model's constancy check (``_check_constancy``)
-        self.without: tuple[Fitted, dict[str, Fitted]] | None = None   # backward's last round: model, its reductions
+        self.reductions: tuple[Fitted, dict[str, Fitted]] | None = None   # backward's last round: model, refits
 
     @property
     def shared(self) -> Any:
@@ -467,7 +467,7 @@ class _Search:
             i = int(np.argmin([m.held_cost for m in reduced]))
             v = verdict(reduced[i], current)
             if v.accepted:
-                self.without = (current, dict(zip(current.effects, reduced)))   # the exchange starts from these
+                self.reductions = (current, dict(zip(current.effects, reduced)))   # the exchange starts from these
                 break
             gone = current.effects[i]
             removed.append(gone)
@@ -528,8 +528,8 @@ class _Search:
     def _without(self, current: Fitted, name: str) -> Fitted:
         """``current`` refitted without ``name``: backward elimination's own refit when its last round kept
         ``current`` (the same task on the same model: the same fit, not made twice), else refitted here."""
-        if self.without is not None and self.without[0] is current:
-            return self.without[1][name]
+        if self.reductions is not None and self.reductions[0] is current:
+            return self.reductions[1][name]
         return self.pool.map(_without_task, [(self.shared, current, name, self.budget)], desc=f"without {name}")[0]
 
     def _record(self, model: Fitted, added: str | None, score: float | None, extra: dict[str, Any]) -> None:
