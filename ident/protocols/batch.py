@@ -22,6 +22,7 @@ import sys
 import tempfile
 import threading
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence, TypeVar
 
 from tqdm import tqdm
@@ -278,15 +279,26 @@ def _gather(client: Any, fn: Callable[[T], R], items: list[T], progress: bool, d
 def _start_hint(error: BaseException) -> str:
     """What to do when the workers failed because the caller's main script runs hdrive's work at import: each worker
     is a new process that imports the main module (multiprocessing's spawn), so the script started workers again
-    from inside a worker (measured: Dask only says "Nanny failed to start"; the cause sits deep in the chain)."""
+    from inside a worker (measured: Dask only says "Nanny failed to start"). Inside such a worker the cause sits deep
+    in the chain; in the script's own process, whose workers died of it, only the script's source tells (it has no
+    ``__main__`` guard)."""
     seen: BaseException | None = error
     while seen is not None:
         if "bootstrapping phase" in str(seen):
-            return (". The workers are new processes that import your main script, and it starts hdrive's work when "
-                    "imported: put that work under `if __name__ == \"__main__\":`, or pass workers=0 to run in this "
-                    "process")
+            return _UNGUARDED.format(script="your main script")
         seen = seen.__cause__ or seen.__context__
-    return ""
+    main = sys.modules.get("__main__")
+    script = getattr(main, "__file__", None)   # a module run with -m (a __spec__) is not imported again by spawn
+    try:
+        unguarded = getattr(main, "__spec__", None) is None and str(script).endswith(".py") \
+            and "__main__" not in Path(str(script)).read_text()
+    except (OSError, UnicodeDecodeError):
+        unguarded = False
+    return _UNGUARDED.format(script=script) if unguarded else ""
+
+
+_UNGUARDED = (". The workers are new processes that import {script}, and it starts hdrive's work when imported: put "
+              "that work under `if __name__ == \"__main__\":`, or pass workers=0 to run in this process")
 
 
 class WorkerPool:
