@@ -732,12 +732,16 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
             assert fn is _refit_task
             return [self.plugin.refit(m, t, b) for _, m, t, b in tasks]
 
-    for gain, exchanged in ((1.043, True), (1.005, False)):
+    def named_pair(gain: float) -> tuple[Plugin, _Search, Fitted]:
+        """A search that has named hysteresis, then Stribeck; its final model."""
         plugin = Plugin(gain)
         search = _Search(plugin, Pool(plugin), None, 3, _Say(False))
         search.named = [NamedEffect(n, math.nan, (math.nan, math.nan), "", "", None, None)
                         for n in ("hysteresis", "stribeck")]
-        current = model(("hysteresis", "stribeck"), 1.0)
+        return plugin, search, model(("hysteresis", "stribeck"), 1.0)
+
+    for gain, exchanged in ((1.043, True), (1.005, False)):
+        plugin, search, current = named_pair(gain)
         out = search._exchange(current)
         # the last name, stribeck, is not exchanged; a replacement that passes the rule's held-back test is also
         # drop-tested, as every named effect is
@@ -753,11 +757,7 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
             assert names == ["hysteresis", "stribeck"] and out is current and not search.notes
 
     # after backward elimination kept the model, the exchange starts from backward's own refit without each name
-    plugin = Plugin(1.043)
-    search = _Search(plugin, Pool(plugin), None, 3, _Say(False))
-    search.named = [NamedEffect(n, math.nan, (math.nan, math.nan), "", "", None, None)
-                    for n in ("hysteresis", "stribeck")]
-    current = model(("hysteresis", "stribeck"), 1.0)
+    plugin, search, current = named_pair(1.043)
     assert search._backward(current) is current and plugin.dropped == ["hysteresis", "stribeck"]
     search._exchange(current)
     assert plugin.dropped == ["hysteresis", "stribeck", "viscous_load"], plugin.dropped
