@@ -1,11 +1,24 @@
 """Shared fixtures: the FMUs are built (or taken from the cache) once per test session."""
 from __future__ import annotations
 
+import signal
+import threading
 from pathlib import Path
 
 import pytest
 
 from fmu_build import build_fmu
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """SIGINT handled as in a terminal, for the Ctrl-C tests (SIGINT sent to a subprocess, or
+    ``_thread.interrupt_main``, which does nothing where Python does not handle SIGINT). A test run started in the
+    background by a non-interactive shell (``cmd &``) has SIGINT ignored, and an ignored signal stays ignored across
+    ``exec``, so every process the tests start ignored the Ctrl-C they were sent: five tests failed that way. Python's
+    own handler is installed instead (a handled signal is reset to its default at ``exec``); in pytest-xdist's
+    workers as well, which run this hook too."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session")
