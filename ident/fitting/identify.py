@@ -737,8 +737,9 @@ def fit_pipeline(log: DriveLog, base: DriveParams, make: Callable[..., OutputErr
     """Steps 1-3 of the module docstring for any output-error problem ``make(log, base, stop, sigma_l)`` whose
     unknowns are ``[ln K*, ln J_l*, ln f_l*, d0/band]`` followed by ``extra`` (held at its given value by the grids,
     fitted by IPOPT; the discrepancy workflow passes its effects' unknowns there; a 2-D ``extra`` gives
-    alternatives that the first window's grid searches too). Returns the whole-log problem (open), the best
-    optimum, the load noise estimate, the start and the stages."""
+    alternatives that the first window's grid searches too). The lean continuation (``fit_tracks`` without
+    ``thorough``: a refit under an evaluation budget). Returns the whole-log problem (open), the best optimum, the
+    load noise estimate, the start and the stages."""
     tracks, problem, start, stages = fit_tracks(log, base, make, extra, progress=progress,
                                                 first_window_periods=first_window_periods, max_iter=max_iter,
                                                 stage_iter=stage_iter, growth=growth)
