@@ -653,7 +653,7 @@ def fit_tracks(log: DriveLog, base: DriveParams, make: Callable[..., OutputError
     the first on this log, the pipeline runs again along it and the lower whole-log cost wins (the start records
     which: ``start_path``). Without it (``fit_pipeline``: the diagnosis's refits of a candidate from scratch, under
     an evaluation budget) the window grows by the model's linearity alone: on logs with a missing effect most
-    windows leave misfit, the short steps took 1.4x the evaluations over the diagnosis's 63 base fits (3.9x on one),
+    windows leave misfit, the short steps took 1.45x the evaluations over the diagnosis's 63 base fits (4.2x on one),
     and a candidate's refit spends them from its budget.
 
     Why: the start's choices (the first window, the candidate frequency) are made on a few hundred samples, and a
