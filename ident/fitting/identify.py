@@ -914,9 +914,7 @@ def _first_stage(log: DriveLog, base: DriveParams, start: dict[str, Any], period
             tracks.append(Track(theta, info=info))
         if not any(at_noise(first, t.theta, strict=True) for t in tracks):
             best = min(tracks, key=lambda t: first.cost(t.theta))
-            for th in _scale_minima(first, best.theta, lo, hi):
-                theta, info = fit_ipopt(first, th, lo, hi, max_iter)
-                tracks.append(Track(theta, info=info))
+            tracks += _fit_scale_minima(first, best.theta, max_iter)
         starts = len(tracks)
         tracks, sigma = _settle(first, tracks)
         stages.append({"window_s": stop / log.meta.sample_rate_hz, **tracks[0].info, "multistart": starts,
@@ -1184,12 +1182,20 @@ def _rescale(problem: OutputError, fitted: list[Track], previous: Track, iterati
     (seed 7467, 7 s at 5 kHz): windows to 0.36 s at the noise with the scale 1.3 % low, the 0.46 s grid window
     at 3.2x, and every later window further off (the whole log at 17x the noise, K* 4 % low); with the scale's
     minima, 0.46 s at the noise and the whole log at the truth."""
-    lo, hi = problem.bounds()
-    extra = []
-    for th in _scale_minima(problem, previous.theta, lo, hi):
-        theta, info = fit_ipopt(problem, th, lo, hi, iterations)
-        extra.append(Track(theta, info={**info, "rescaled": True}))   # the stage's row tells when one won
+    extra = _fit_scale_minima(problem, previous.theta, iterations)
+    for t in extra:
+        t.info["rescaled"] = True   # the stage's row tells when one won
     return _settle(problem, fitted + extra)
+
+
+def _fit_scale_minima(problem: OutputError, theta: np.ndarray, iterations: int) -> list[Track]:
+    """IPOPT (``iterations``) from each of the scale's lowest local minima around ``theta`` (``_scale_minima``)."""
+    lo, hi = problem.bounds()
+    tracks = []
+    for th in _scale_minima(problem, theta, lo, hi):
+        fitted, info = fit_ipopt(problem, th, lo, hi, iterations)
+        tracks.append(Track(fitted, info=info))
+    return tracks
 
 
 def _fit_searching(problem: OutputError, theta: np.ndarray, cov: np.ndarray | None, iterations: int
