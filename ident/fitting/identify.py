@@ -641,6 +641,26 @@ CONVERGED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 START_PATHS = (StartPath("load", True), StartPath("either", False))
 
 
+@dataclass(frozen=True)
+class _Run:
+    """What every stage of one fit shares (``fit_tracks``' arguments): the log, the base drive, the problem's maker
+    and the extra unknowns' starts, the first window's length in ringing periods, IPOPT's iterations on the first
+    and the whole-log window (``max_iter``) and on the windows between (``stage_iter``), the window's growth factor,
+    whether the fit is ``thorough``, and what it prints."""
+
+    log: DriveLog
+    base: DriveParams
+    make: Callable[..., OutputError]
+    extra: np.ndarray
+    periods: float
+    max_iter: int
+    stage_iter: int
+    growth: float
+    thorough: bool
+    progress: bool
+    verbose: bool
+
+
 def fit_tracks(log: DriveLog, base: DriveParams, make: Callable[..., OutputError], extra: np.ndarray, *,
                progress: bool = False, verbose: bool = False, first_window_periods: float = 8.0,
                max_iter: int = 40, stage_iter: int = 12, growth: float = 1.3, thorough: bool = False
@@ -662,13 +682,13 @@ def fit_tracks(log: DriveLog, base: DriveParams, make: Callable[..., OutputError
     default design, at the noise before) at 6650x and 12.6x; the noise test tells which path failed. A third (a
     pulse train) crept along the scale's valley to 1.005x the noise, 10 bound sigmas off, its last fit stopped by
     the iteration limit: the other path's optimum is lower."""
+    run = _Run(log, base, make, extra, first_window_periods, max_iter, stage_iter, growth, thorough, progress, verbose)
     start = _start(log, base)
     say(progress, "  start: " + (f"ringing {start['f_peak_hz']:.4g} Hz from {start['segments']} free-ringing "
                                   "segment(s)" if start["frequency_trusted"] else
                                   f"free ringing not conclusive ({start['segments']} segment(s)): scanning "
                                   f"{len(start['candidates_hz'])} candidate frequencies"))
-    first = _one_path(log, base, make, extra, dict(start), START_PATHS[0], progress, verbose, first_window_periods,
-                      max_iter, stage_iter, growth, thorough)
+    first = _one_path(run, dict(start), START_PATHS[0])
     tracks, problem = first[0], first[1]
     settled = at_noise(problem, tracks[0].theta) and tracks[0].info.get("status") in CONVERGED
     if not thorough or settled:
@@ -679,8 +699,7 @@ def fit_tracks(log: DriveLog, base: DriveParams, make: Callable[..., OutputError
     say(progress, "  the whole-log fit stays above the noise or stopped at its iteration limit: the start's other "
                   "path (" + START_PATHS[1].describe() + ") ...")
     try:
-        second = _one_path(log, base, make, extra, dict(start), START_PATHS[1], progress, verbose,
-                           first_window_periods, max_iter, stage_iter, growth, thorough)
+        second = _one_path(run, dict(start), START_PATHS[1])
     except Exception as exc:  # noqa: BLE001 - the first path's result stands; the failure is recorded
         first[2]["other_path_error"] = f"{type(exc).__name__}: {exc}"
         return first
@@ -696,21 +715,17 @@ def fit_tracks(log: DriveLog, base: DriveParams, make: Callable[..., OutputError
     return keep
 
 
-def _one_path(log: DriveLog, base: DriveParams, make: Callable[..., OutputError], extra: np.ndarray,
-              start: dict[str, Any], path: StartPath, progress: bool, verbose: bool, periods: float,
-              max_iter: int, stage_iter: int, growth: float, thorough: bool
+def _one_path(run: _Run, start: dict[str, Any], path: StartPath
               ) -> tuple[list[Track], OutputError, dict[str, Any], list[dict[str, Any]]]:
     """``fit_tracks`` along one start path (``start`` is this path's copy: the first stage records in it)."""
     start["start_path"] = path.describe()
     stages: list[dict[str, Any]] = []
-    tracks, sigma, stop = _first_stage(log, base, start, periods, start["sigma_start_rad"], max_iter, make, extra,
-                                       verbose, stages, path)
-    _say_stage(progress, stages[-1], len(tracks))
-    problem, tracks = _continuation(log, base, start, tracks, sigma, stages, stop, growth, stage_iter, max_iter,
-                                    progress, make, verbose, thorough)
+    tracks, sigma, stop = _first_stage(run, start, stages, path)
+    _say_stage(run.progress, stages[-1], len(tracks))
+    problem, tracks = _continuation(run, start, tracks, sigma, stages, stop)
     try:
-        tracks = _other_basin(problem, tracks, stages, stage_iter, progress)
-        return _rescue(problem, tracks, stages, stage_iter, progress), problem, start, stages
+        tracks = _other_basin(problem, tracks, stages, run.stage_iter, run.progress)
+        return _rescue(problem, tracks, stages, run.stage_iter, run.progress), problem, start, stages
     except BaseException:
         problem.close()
         raise
@@ -890,19 +905,19 @@ def _grid_costs(problem: OutputError, base: DriveParams, start: dict[str, Any], 
         problem.close()
 
 
-def _first_stage(log: DriveLog, base: DriveParams, start: dict[str, Any], periods: float, sigma: float,
-                 max_iter: int, make: Callable[..., OutputError], extra: np.ndarray, verbose: bool,
-                 stages: list[dict[str, Any]], path: StartPath) -> tuple[list[Track], float, int]:
+def _first_stage(run: _Run, start: dict[str, Any], stages: list[dict[str, Any]], path: StartPath
+                 ) -> tuple[list[Track], float, int]:
     """The first window: grid (``_best_candidate_grid``), IPOPT from the best distinct grid points -- at least
     ``MIN_STARTS``, more (up to ``MAX_STARTS``) until an optimum explains the window down to its noise
     (``at_noise``; the grid's cost at its coarse points is a poor guide to the basins: measured on a PD log, the
     two best grid points led to a local minimum 5 % off, the third to the truth) -- the optima kept as tracks unless
     the data reject them. Records the grid's best point in ``start``. Returns the tracks, the noise estimate and the
     window's end."""
-    extras = np.atleast_2d(np.asarray(extra, dtype=float))
-    grid, stop = _best_candidate_grid(log, base, start, sigma, make, extras, periods, path)
-    first = make(log, base, stop, sigma)
-    first.verbose = verbose
+    log, sigma, max_iter = run.log, start["sigma_start_rad"], run.max_iter
+    extras = np.atleast_2d(np.asarray(run.extra, dtype=float))
+    grid, stop = _best_candidate_grid(log, run.base, start, sigma, run.make, extras, run.periods, path)
+    first = run.make(log, run.base, stop, sigma)
+    first.verbose = run.verbose
     lo, hi = first.bounds()
     try:
         start.update(zip(NAMES, map(float, np.exp(min(grid, key=lambda g: g[0])[1][:3]))))
@@ -1074,12 +1089,12 @@ def _nearly_linear(problem: OutputError, theta: np.ndarray, cov: np.ndarray) -> 
     return True
 
 
-def _next_window(log: DriveLog, base: DriveParams, make: Callable[..., OutputError], track: Track, stop: int,
-                 sigma: float, growth: float, limit: int, explained: bool) -> tuple[OutputError, bool]:
+def _next_window(run: _Run, track: Track, stop: int, sigma: float, limit: int, explained: bool
+                 ) -> tuple[OutputError, bool]:
     """The next window's problem (open) and whether it needs the grid (``_scale_scan``): where the current window's
     fit ``explained`` it down to the noise (``at_noise``), the longest window up to ``limit`` samples, halving the
     growth in log scale, on which the model is nearly linear over the current uncertainty (``_nearly_linear``);
-    failing that, or where the fit left misfit above the noise, ``growth`` x the current one and the grid.
+    failing that, or where the fit left misfit above the noise, ``run.growth`` x the current one and the grid.
 
     Why only from a fit at the noise: the long step presumes that the truth lies inside the current estimate's
     uncertainty region, which holds for an optimum that explains its window. One that leaves misfit may sit in
@@ -1090,6 +1105,7 @@ def _next_window(log: DriveLog, base: DriveParams, make: Callable[..., OutputErr
     650x. Growing by ``growth`` with the grid, both reached the truth's basin within four windows (4 of the 5
     failures in 70 such logs fixed). Logs with a missing effect (misfit on most windows) take the short steps,
     which is why ``fit_tracks`` applies the rule only when ``thorough`` (it passes ``explained`` True otherwise)."""
+    log, base, make, growth = run.log, run.base, run.make, run.growth
     n = log.n
     if stop >= n:
         return make(log, base, n, sigma), False
@@ -1110,25 +1126,22 @@ def _next_window(log: DriveLog, base: DriveParams, make: Callable[..., OutputErr
     return make(log, base, nxt, sigma), True
 
 
-def _continuation(log: DriveLog, base: DriveParams, start: dict[str, Any], tracks: list[Track], sigma: float,
-                  stages: list[dict[str, Any]], stop: int, growth: float, stage_iter: int, final_iter: int,
-                  progress: bool, make: Callable[..., OutputError], verbose: bool, thorough: bool
-                  ) -> tuple[OutputError, list[Track]]:
+def _continuation(run: _Run, start: dict[str, Any], tracks: list[Track], sigma: float,
+                  stages: list[dict[str, Any]], stop: int) -> tuple[OutputError, list[Track]]:
     """Grow the window to the whole log (module docstring, step 3); every track refitted on each window (IPOPT,
-    ``stage_iter`` iterations; the whole log, whose optimum is the answer, ``final_iter``). A window whose fit no
+    ``run.stage_iter`` iterations; the whole log, whose optimum is the answer, ``run.max_iter``). A window whose fit no
     longer reaches the noise when the previous one did grew too far (the optimum moved out of the basin, e.g. an
     event flipped on the way): it is discarded and the window grows half as far (in log scale) from the previous
-    optimum. ``thorough``: as ``fit_tracks``. Returns the whole-log problem (open) and the surviving tracks."""
-    rate = log.meta.sample_rate_hz
+    optimum. ``run.thorough``: as ``fit_tracks``. Returns the whole-log problem (open) and the surviving tracks."""
+    log, progress, rate = run.log, run.progress, run.log.meta.sample_rate_hz
     previous_ok, limit = bool(stages[-1].get("at_noise", False)), log.n
     while True:
-        problem, rescan = _next_window(log, base, make, tracks[0], stop, sigma, growth, limit,
-                                       previous_ok or not thorough)
-        problem.verbose = verbose
+        problem, rescan = _next_window(run, tracks[0], stop, sigma, limit, previous_ok or not run.thorough)
+        problem.verbose = run.verbose
         try:
             fitted, fitted_sigma = _fit_window(problem, tracks, rescan, len(stages), start["f_peak_hz"],
-                                               final_iter if problem.stop >= log.n else stage_iter,
-                                               previous_ok and thorough)
+                                               run.max_iter if problem.stop >= log.n else run.stage_iter,
+                                               previous_ok and run.thorough)
             ok = at_noise(problem, fitted[0].theta)
         except BaseException:  # Ctrl-C, a failed fit: the FMU instance and its folder go now
             problem.close()
