@@ -216,22 +216,26 @@ def test_a_failed_fmu_load_leaves_the_working_directory_where_it_was(monkeypatch
 def test_a_script_without_a_main_guard_is_told_what_to_do(tmp_path) -> None:
     """A user's script that starts a diagnosis at import: each worker (a new process importing the script) starts
     workers again, and Dask only says "Nanny failed to start". The error names the cause and the two ways out, in
-    the workers (whose own start fails) and in the script's process (whose workers die of it)."""
+    the workers (refused at once, where the pool is made: nothing of the script's work runs there) and in the
+    script's process (whose workers die of it)."""
     script = tmp_path / "unguarded.py"   # its source must not name __main__ (that counts as a guard): spelled in parts
     script.write_text(f"import sys\nsys.path.insert(0, {str(ROOT)!r})\n"
                       "from ident.protocols.batch import BatchError, WorkerPool\n"
                       "who = 'SCRIPT' if __name__ == '__ma' + 'in__' else 'WORKER'\n"
-                      "with WorkerPool(1) as pool:\n"
-                      "    try:\n"
+                      "try:\n"
+                      "    with WorkerPool(1) as pool:\n"
+                      "        print(who, 'POOL MADE', flush=True)\n"
                       "        pool.share(1)\n"
-                      "    except BatchError as exc:\n"
-                      "        print(who, exc, flush=True)\n"
-                      "        raise SystemExit(3)\n")
+                      "except BatchError as exc:\n"
+                      "    print(who, exc, flush=True)\n"
+                      "    raise SystemExit(3)\n")
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120, cwd=tmp_path)
-    lines = {ln.split(" ", 1)[0]: ln for ln in out.stdout.splitlines() if ln.startswith(("SCRIPT", "WORKER"))}
+    lines = {ln.split(" ", 1)[0]: ln for ln in out.stdout.splitlines()
+             if ln.startswith(("SCRIPT", "WORKER")) and "POOL MADE" not in ln}
     assert set(lines) == {"SCRIPT", "WORKER"}, out.stdout + out.stderr[-2000:]
-    assert "the local Dask workers did not start: Nanny failed to start. The workers are new processes that import " \
-           "your main script" in lines["WORKER"]
+    assert "WORKER POOL MADE" not in out.stdout and "SCRIPT POOL MADE" in out.stdout, out.stdout
+    assert "the local Dask workers did not start: this process is a worker importing the main script. The workers " \
+           "are new processes that import your main script" in lines["WORKER"]
     assert f"The workers are new processes that import {script}, and it starts" in lines["SCRIPT"]
     for line in lines.values():
         assert 'put that work under `if __name__ == "__main__":`, or pass workers=0' in line

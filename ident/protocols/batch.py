@@ -16,6 +16,7 @@ scratch space) in one folder that is removed with the cluster, also when the bat
 from __future__ import annotations
 
 import atexit
+import multiprocessing
 import os
 import shutil
 import sys
@@ -195,6 +196,7 @@ def _local_client(n: int) -> Iterator[Any]:
     import dask
     from dask.distributed import Client
 
+    _refuse_while_importing_main()
     scratch = tempfile.mkdtemp(prefix="hdrive-workers-")
     _SCRATCH.add(scratch)   # an interrupted cluster may still write into it while it shuts down
     cluster = client = None
@@ -279,8 +281,9 @@ def _gather(client: Any, fn: Callable[[T], R], items: list[T], progress: bool, d
 def _start_hint(error: BaseException) -> str:
     """What to do when the workers failed because the caller's main script runs hdrive's work at import: each worker
     is a new process that imports the main module (multiprocessing's spawn), so the script started workers again
-    from inside a worker (measured: Dask only says "Nanny failed to start"). Inside such a worker the cause sits deep
-    in the chain; in the script's own process, whose workers died of it, only the script's source tells (it has no
+    from inside a worker (measured: Dask only says "Nanny failed to start"). Inside such a worker the pool is refused
+    before it starts (``_refuse_while_importing_main``; where that check cannot read its flag, the cause sits deep in
+    the chain); in the script's own process, whose workers died of it, only the script's source tells (it has no
     ``__main__`` guard)."""
     seen: BaseException | None = error
     while seen is not None:
@@ -299,6 +302,19 @@ def _start_hint(error: BaseException) -> str:
 
 _UNGUARDED = (". The workers are new processes that import {script}, and it starts hdrive's work when imported: put "
               "that work under `if __name__ == \"__main__\":`, or pass workers=0 to run in this process")
+
+
+def _refuse_while_importing_main() -> None:
+    """``BatchError`` at once where this process is a worker still importing the caller's main script (a script that
+    runs hdrive's work at import, without a ``__main__`` guard: multiprocessing's spawn imports it in every worker).
+    Workers started there would fail anyway (the standard library refuses to start a process during that import),
+    but the work before the first batch would run in full in every worker first. Measured: an unguarded script's
+    diagnosis of a clean log (which needs no batch) ran three times, once in the script and once in each of its two
+    workers, and printed its answer three times; one with a hidden effect failed after every worker had fitted the
+    base model. The flag read is the one the standard library's own refusal reads (absent elsewhere: no check)."""
+    if getattr(multiprocessing.current_process(), "_inheriting", False):
+        raise BatchError("the local Dask workers did not start: this process is a worker importing the main script"
+                         + _UNGUARDED.format(script="your main script"))
 
 
 class WorkerPool:
@@ -327,6 +343,7 @@ class WorkerPool:
         if self.scheduler is not None:
             self.client = connect(self.scheduler)
         elif not self.serial:
+            _refuse_while_importing_main()
             self._scratch = tempfile.mkdtemp(prefix="hdrive-workers-")
             _SCRATCH.add(self._scratch)
             self._starting = threading.Thread(target=self._start, name="hdrive-workers", daemon=True)
