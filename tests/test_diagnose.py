@@ -553,7 +553,7 @@ def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None
         def share(self, plugin: object) -> object:
             return plugin
 
-        def map(self, fn: object, tasks: list[tuple], desc: str = "") -> list[None]:
+        def map(self, fn: object, tasks: list[tuple], desc: str = "", cost: object = None) -> list[None]:
             self.probes += len(tasks)
             return [None] * len(tasks)   # probes that failed: the search ends at its first check
 
@@ -585,7 +585,7 @@ def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None
 
 class _Recorded:
     """What ``_Search._record`` asks of a plug-in, for the loop's tests with stand-in plug-ins: the model as it is,
-    and a bare step."""
+    and a bare step (and every refit alike in cost)."""
 
     @staticmethod
     def resimulated(m: Fitted) -> Fitted:
@@ -596,6 +596,10 @@ class _Recorded:
         from ident.diagnosis.result import DiagnosisStep
 
         return DiagnosisStep(added, None, None, math.nan, score, {}, extra=dict(extra))
+
+    @staticmethod
+    def refit_cost(name: str) -> float:
+        return 1.0
 
 
 def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -> None:
@@ -623,7 +627,7 @@ def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -
         def share(self, plugin: object) -> object:
             return plugin
 
-        def map(self, fn: object, tasks: list[tuple], desc: str = "") -> list[CandidateFit]:
+        def map(self, fn: object, tasks: list[tuple], desc: str = "", cost: object = None) -> list[CandidateFit]:
             return self.fits
 
     class Plugin(_Recorded):
@@ -726,7 +730,7 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
         def share(self, plugin: object) -> object:
             return plugin
 
-        def map(self, fn: object, tasks: list[tuple], desc: str = "") -> list[object]:
+        def map(self, fn: object, tasks: list[tuple], desc: str = "", cost: object = None) -> list[object]:
             if fn is _without_task:
                 return [self.plugin.without(m, name, b) for _, m, name, b in tasks]
             assert fn is _refit_task

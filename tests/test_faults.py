@@ -195,6 +195,29 @@ def test_an_fmu_load_and_a_worker_start_never_overlap(monkeypatch) -> None:
     assert not _overlapped(monkeypatch, dask.distributed, "LocalCluster", start)
 
 
+def _started(x: int) -> tuple[int, float]:
+    """A task that says when it started (a worker's clock: the same machine's)."""
+    start = time.time()
+    time.sleep(0.05)
+    return x, start
+
+
+def test_the_costliest_tasks_start_first_and_the_results_keep_their_order() -> None:
+    """``WorkerPool.map(cost=...)``: the costliest items are submitted first (on one worker: run first), so a batch
+    of uneven tasks does not end waiting on a costly one started last; the results come back in the items' order,
+    as without costs and as serially. A cost list of the wrong length is refused before any work."""
+    items, cost = [0, 1, 2, 3], [1.0, 3.0, 0.5, 2.0]
+    with batch.WorkerPool(1, None) as pool:
+        out = pool.map(_started, items, cost=cost)
+        plain = pool.map(_started, items)
+        with pytest.raises(ValueError, match="cost has 3 entries for 4 items"):
+            pool.map(_started, items, cost=cost[:3])
+    assert [x for x, _ in out] == items == [x for x, _ in plain]
+    assert [x for x, _ in sorted(out, key=lambda r: r[1])] == [1, 3, 0, 2]
+    with batch.WorkerPool(0) as serial:
+        assert [x for x, _ in serial.map(_started, items, cost=cost)] == items
+
+
 def test_a_failed_fmu_load_leaves_the_working_directory_where_it_was(monkeypatch) -> None:
     """fmpy does not switch the working directory back when the library does not load; the plant's folder is then
     deleted, and the process would be left in a folder that no longer exists."""

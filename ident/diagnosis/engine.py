@@ -341,7 +341,7 @@ class _Search:
             return None
         self.say(f"refitting {', '.join(t.candidate for t in passing)} ...")
         fits = self.pool.map(_refit_task, [(self.shared, current, t, self.budget) for t in passing],
-                             desc=f"candidates (step {k})")
+                             desc=f"candidates (step {k})", cost=[self.plugin.refit_cost(t.candidate) for t in passing])
         winner, rows, reduced = self._select(current, fits, k)
         self.steps[-1].candidates = pd.DataFrame(rows)
         self._remember_unfitted(fits, k, winner)
@@ -501,7 +501,7 @@ class _Search:
         tests = ranked(self.plugin.screen(reduced, names))
         passing = [t for t in tests if t.passed]
         fits = self.pool.map(_refit_task, [(self.shared, reduced, t, self.budget) for t in passing],
-                             desc=f"exchanging {name}")
+                             desc=f"exchanging {name}", cost=[self.plugin.refit_cost(t.candidate) for t in passing])
         ok = sorted((f for f in fits if f.model is not None and not f.exhausted), key=lambda f: f.model.held_cost)
         if not ok or self._judge(current, ok[0], {}, want_drop=False)[0]:   # the loop's one acceptance rule
             return None

@@ -253,13 +253,16 @@ def _shut_down(client: Any, cluster: Any, interrupted: bool) -> None:
             quiet.setLevel(level)
 
 
-def _gather(client: Any, fn: Callable[[T], R], items: list[T], progress: bool, desc: str, where: str) -> list[R]:
-    """Submit, then collect in input order; a worker's exception is re-raised here; ``BatchError`` when the cluster
-    has no worker left while tasks are pending (it would wait forever)."""
+def _gather(client: Any, fn: Callable[[T], R], items: list[T], progress: bool, desc: str, where: str,
+            order: Sequence[int] | None = None) -> list[R]:
+    """Submit (in ``order``, indices into ``items``: the first submitted first; default as given), then collect in
+    input order; a worker's exception is re-raised here; ``BatchError`` when the cluster has no worker left while
+    tasks are pending (it would wait forever)."""
     from dask.distributed import wait
 
-    futures = client.map(fn, items, pure=False)
-    index = {f.key: i for i, f in enumerate(futures)}
+    order = range(len(items)) if order is None else order
+    futures = client.map(fn, [items[i] for i in order], pure=False)
+    index = {f.key: i for i, f in zip(order, futures)}
     results: list[Any] = [None] * len(items)
     pending = set(futures)
     with tqdm(total=len(items), desc=desc, disable=not progress) as bar:
@@ -380,15 +383,22 @@ class WorkerPool:
         self._ready()
         return self.client.scatter(value, broadcast=True)
 
-    def map(self, fn: Callable[[T], R], items: Sequence[T], *, progress: bool = False, desc: str = "runs") -> list[R]:
-        """``[fn(x) for x in items]`` on the pool's workers."""
+    def map(self, fn: Callable[[T], R], items: Sequence[T], *, progress: bool = False, desc: str = "runs",
+            cost: Sequence[float] | None = None) -> list[R]:
+        """``[fn(x) for x in items]`` on the pool's workers. ``cost``: each item's expected cost (any unit): the
+        costliest are submitted first, so that a batch of uneven tasks does not end waiting on a costly one started
+        last (longest first; measured with 7 tasks of a diagnosis step's spread on 2 workers: 5.9 s instead of 6.7 s,
+        the longest 5.6 s). The results are the same, in the same order."""
         items = list(items)
+        if cost is not None and len(cost) != len(items):
+            raise ValueError(f"cost has {len(cost)} entries for {len(items)} items")
         if not items:
             return []
         if self.serial:
             return [fn(x) for x in tqdm(items, desc=desc, disable=not progress)]
         self._ready()
-        return _gather(self.client, fn, items, progress, desc, self.scheduler or "the local cluster")
+        order = None if cost is None else sorted(range(len(items)), key=lambda i: -cost[i])
+        return _gather(self.client, fn, items, progress, desc, self.scheduler or "the local cluster", order)
 
     def close(self, interrupted: bool = False) -> None:
         """Stop the pool; ``interrupted``: kill the local workers rather than wait for their tasks."""

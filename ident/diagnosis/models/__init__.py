@@ -164,6 +164,12 @@ class ModelPlugin(ABC):
         carried over, what a log needs to tell the two apart). None: ``name`` has no twin here."""
         return None
 
+    def refit_cost(self, name: str) -> float:
+        """The expected cost of refitting candidate ``name``, relative to the others (any unit): the order the
+        workers start a step's refits in, costliest first. Never a decision: the results are the same in any order.
+        Default: all alike."""
+        return 1.0
+
     def twin(self, model: Fitted, name: str, budget: float | None) -> Fitted | None:
         """``model`` with ``twin_of``'s rival in place of ``name`` at the carried-over size, refitted from there
         (``budget`` as ``refit``). None: no twin."""

@@ -75,6 +75,12 @@ FLEXIBILITY = "flexibility"
 #: effects the gear makes near twins (``TwoInertiaPlugin.twin``): effect -> (its twin, its parameter, the twin's, the
 #: power of the ratio r = q_l / q_m that carries the size over: b_m = r^2 b_l)
 TWINS = {"viscous_motor": ("viscous_load", "b_m", "b_l", -2), "viscous_load": ("viscous_motor", "b_l", "b_m", 2)}
+#: seconds per FMU simulation of 10 s at 5 kHz with each effect on (bench/README, "FMU with effects on": the nominal
+#: drive, 2026-11-25): a candidate's refit costs about its effect's simulations, so the workers start the costliest
+#: first (``refit_cost``). Measured on an outside log (a friction ripple): Stribeck refits took 56-65 s, the others
+#: 4-45 s, and a step whose Stribeck refit started fifth waited on it.
+SIMULATION_S = {"viscous_motor": 0.026, "viscous_load": 0.022, "stribeck": 0.094, "asymmetric_friction": 0.026,
+                "hardening": 0.025, "hysteresis": 0.045, "kinematic_error": 0.046}
 
 
 @dataclass
@@ -489,6 +495,11 @@ class TwoInertiaPlugin(ModelPlugin):
         d = first.state.theta[keep] - second.state.theta[keep]
         V = (self._cov(first) + self._cov(second))[np.ix_(keep, keep)]
         return float(d @ np.linalg.pinv(V, rcond=1e-12) @ d), len(keep)
+
+    def refit_cost(self, name: str) -> float:
+        """``SIMULATION_S`` of the candidate's effect; flexibility (an identification from scratch) and any effect
+        not measured there: the costliest."""
+        return SIMULATION_S.get(name, max(SIMULATION_S.values()))
 
     def twin_of(self, model: Fitted, name: str) -> tuple[str, str, str] | None:
         """Viscous friction on the other side of the gear (``TWINS``): a load-side coefficient b_l acts on the motor
