@@ -78,7 +78,7 @@ from ..fitting.logs import DriveLog, LogError
 from ..protocols.batch import WorkerPool
 from .models import CandidateFit, Fitted, ModelPlugin
 from .result import Diagnosis, DiagnosisStep, NamedEffect, PublishedReference
-from .screening import DETECTION_POWER, SCREEN_LEVEL, ranked, screen_table
+from .screening import DETECTION_POWER, SCREEN_LEVEL, ScoreTest, ranked, screen_table
 from .sizes import SIZE_PROBE, Checks, SizeSearch, search_candidate, search_size, widen
 
 #: one-sided Diebold-Mariano level of the held-back losses
@@ -340,8 +340,7 @@ class _Search:
                               f"{SCREEN_LEVEL:g}): none refitted")
             return None
         self.say(f"refitting {', '.join(t.candidate for t in passing)} ...")
-        fits = self.pool.map(_refit_task, [(self.shared, current, t, self.budget) for t in passing],
-                             desc=f"candidates (step {k})", cost=[self.plugin.refit_cost(t.candidate) for t in passing])
+        fits = self._refits(current, passing, f"candidates (step {k})")
         winner, rows, reduced = self._select(current, fits, k)
         self.steps[-1].candidates = pd.DataFrame(rows)
         self._remember_unfitted(fits, k, winner)
@@ -352,6 +351,12 @@ class _Search:
         if winner is None:
             return None
         return self._accept(current, winner, fits, k)
+
+    def _refits(self, model: Fitted, passing: list[ScoreTest], desc: str) -> list[CandidateFit]:
+        """Each candidate of ``passing`` refitted at ``model`` on the workers (``_refit_task``), the costliest
+        started first (``plugin.refit_cost``); in ``passing``'s order."""
+        return self.pool.map(_refit_task, [(self.shared, model, t, self.budget) for t in passing], desc=desc,
+                             cost=[self.plugin.refit_cost(t.candidate) for t in passing])
 
     def _replace(self, current: Fitted, name: str, reduced: Fitted, winner: CandidateFit | None) -> None:
         """The current model gives way to ``reduced``: its own effects, refitted from ``name``'s refit with ``name``
@@ -500,8 +505,7 @@ class _Search:
         names = tuple(c for c in self.plugin.candidates(reduced) if c != name)
         tests = ranked(self.plugin.screen(reduced, names))
         passing = [t for t in tests if t.passed]
-        fits = self.pool.map(_refit_task, [(self.shared, reduced, t, self.budget) for t in passing],
-                             desc=f"exchanging {name}", cost=[self.plugin.refit_cost(t.candidate) for t in passing])
+        fits = self._refits(reduced, passing, f"exchanging {name}")
         ok = sorted((f for f in fits if f.model is not None and not f.exhausted), key=lambda f: f.model.held_cost)
         if not ok or self._judge(current, ok[0], {}, want_drop=False)[0]:   # the loop's one acceptance rule
             return None

@@ -281,18 +281,12 @@ def _gather(client: Any, fn: Callable[[T], R], items: list[T], progress: bool, d
     return results
 
 
-def _start_hint(error: BaseException) -> str:
+def _start_hint() -> str:
     """What to do when the workers failed because the caller's main script runs hdrive's work at import: each worker
     is a new process that imports the main module (multiprocessing's spawn), so the script started workers again
     from inside a worker (measured: Dask only says "Nanny failed to start"). Inside such a worker the pool is refused
-    before it starts (``_refuse_while_importing_main``; where that check cannot read its flag, the cause sits deep in
-    the chain); in the script's own process, whose workers died of it, only the script's source tells (it has no
-    ``__main__`` guard)."""
-    seen: BaseException | None = error
-    while seen is not None:
-        if "bootstrapping phase" in str(seen):
-            return _UNGUARDED.format(script="your main script")
-        seen = seen.__cause__ or seen.__context__
+    before it starts, with this advice (``_refuse_while_importing_main``); in the script's own process, whose
+    workers died of it, only the script's source tells (it has no ``__main__`` guard)."""
     main = sys.modules.get("__main__")
     script = getattr(main, "__file__", None)   # a module run with -m (a __spec__) is not imported again by spawn
     try:
@@ -370,7 +364,7 @@ class WorkerPool:
             self._starting.join(0.1)
         if self._error is not None:
             why = str(self._error).rstrip(".")
-            raise BatchError(f"the local Dask workers did not start: {why}{_start_hint(self._error)}") from self._error
+            raise BatchError(f"the local Dask workers did not start: {why}{_start_hint()}") from self._error
 
     def __exit__(self, kind: object, exc: object, tb: object) -> None:
         self.close(interrupted=kind is not None)
