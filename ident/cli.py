@@ -16,6 +16,7 @@ import os
 import sys
 from typing import Any, Sequence
 
+from .common.blas import one_blas_thread
 from .diagnosis import DEFAULT_BUDGET as DEFAULT_CANDIDATE_BUDGET
 from .model.params import DriveParams, ParameterError, parse_assignments
 from .protocols.controllers import SettleError
@@ -708,7 +709,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
-        code, result = run(args)
+        with one_blas_thread():
+            code, result = run(args)
     finally:
         signal.signal(signal.SIGTERM, previous)
     if result is not None and args.json:

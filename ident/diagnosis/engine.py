@@ -74,6 +74,7 @@ import pandas as pd
 from scipy import stats
 
 from . import CONFIDENT_OVER_NOISE, DEFAULT_BUDGET, MIN_GAIN, above_level, levels_text
+from ..common.blas import one_blas_thread
 from ..fitting.logs import DriveLog, LogError
 from ..protocols.batch import WorkerPool
 from .models import CandidateFit, Fitted, ModelPlugin
@@ -798,6 +799,7 @@ def make_plugin(log: DriveLog, model: str, holdout: DriveLog | None, candidates:
                             candidates=candidates, resolution_pulses=resolution_pulses)
 
 
+@one_blas_thread()
 def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | None = None,
              out_dir: str | Path | None = None, candidates: tuple[str, ...] | None = None, max_effects: int = 3,
              resolution_pulses: int = 200, workers: int | None = None, scheduler: str | None = None,

@@ -50,6 +50,7 @@ from typing import Any
 
 import numpy as np
 
+from ..common.blas import one_blas_thread
 from ..model.params import DriveParams, ParameterError
 from ..model.plant import Plant, PlantError
 from .logs import DriveLog, LogError
@@ -1357,6 +1358,7 @@ def _warnings(estimates: dict[str, Estimate], fit: dict[str, float], bound: list
     return out
 
 
+@one_blas_thread()
 def identify(log: DriveLog, *, model: str = "two-inertia", progress: bool = False, verbose: bool = False,
              first_window_periods: float = 8.0, max_iter: int = 40, stage_iter: int = 12,
              growth: float = 1.3, checks: bool = True) -> TwoInertiaFit:
