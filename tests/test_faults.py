@@ -73,12 +73,34 @@ def _sleep_then_double(x: int) -> int:
     return 2 * x
 
 
+def _double(x: int) -> int:
+    return 2 * x
+
+
+def test_a_second_run_at_once_does_not_warn_about_the_dashboards_port() -> None:
+    """Two hdrive runs at once on one machine: the second's local cluster takes a free port for its dashboard
+    rather than warning on stderr that Dask's default (8787) is in use (seen in the default test run)."""
+    import socket
+    import warnings
+
+    with socket.socket() as held:
+        try:
+            held.bind(("127.0.0.1", 8787))
+            held.listen()
+        except OSError:
+            pass   # already held by something else on this machine: the same situation
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            assert batch.run_batch(_double, [1, 2], workers=1) == [2, 4]
+    assert not [w for w in caught if "already in use" in str(w.message)], [str(w.message) for w in caught]
+
+
 def test_a_cluster_that_loses_its_workers_is_named(monkeypatch) -> None:
     """An external cluster whose last worker goes away while tasks are pending: a named error, not a hang."""
     from dask.distributed import LocalCluster
 
     monkeypatch.setattr(batch, "LIVENESS_POLL_S", 0.5)
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
         import threading
 
         threading.Timer(2.0, lambda: cluster.scale(0)).start()

@@ -35,7 +35,7 @@ def test_sweep_on_a_local_dask_cluster_equals_the_serial_run() -> None:
 
     levels = [0.01, 0.1, 0.5, 1.0]
     serial = friction_sweep(levels=levels, n_pulses=60, workers=0)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
         remote = friction_sweep(levels=levels, n_pulses=60, scheduler=cluster.scheduler_address)
     for a, b in zip(serial.results, remote.results):
         assert a.threshold_amplitude == b.threshold_amplitude

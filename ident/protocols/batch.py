@@ -175,17 +175,18 @@ def _run_threads(fn: Callable[[T], R], items: list[T], n: int, progress: bool, d
     return results
 
 
-def _new_cluster(n: int, scratch: str, dashboard_address: str | None) -> Any:
+def _new_cluster(n: int, scratch: str) -> Any:
     """A local Dask cluster of ``n`` single-threaded worker processes whose scratch space (and ``TMPDIR``) is
     ``scratch``. Started holding the working directory: the workers inherit it, and no FMU load may switch it
     meanwhile (``ident.common.workdir``). The workers' own warnings (e.g. tasks cancelled by an interrupt) are not
-    the user's business."""
+    the user's business. Its dashboard takes a free port: Dask's default (8787) is taken by the first of two runs at
+    once, and the second warned about it on stderr."""
     import logging
 
     from dask.distributed import LocalCluster
 
     with kept_working_directory():
-        return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=dashboard_address,
+        return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                             local_directory=scratch, env={"TMPDIR": scratch}, silence_logs=logging.ERROR)
 
 
@@ -203,7 +204,7 @@ def _local_client(n: int) -> Iterator[Any]:
     try:
         with dask.config.set({"temporary-directory": scratch}):
             with _signals_deferred():  # an interrupt during start-up is handled once the cluster can be shut down
-                cluster = _new_cluster(n, scratch, None)
+                cluster = _new_cluster(n, scratch)
                 client = Client(cluster)
             yield client
     finally:
@@ -353,7 +354,7 @@ class WorkerPool:
             from dask.distributed import Client
 
             with dask.config.set({"temporary-directory": self._scratch}):
-                self.cluster = _new_cluster(self.workers, self._scratch, ":0")
+                self.cluster = _new_cluster(self.workers, self._scratch)
                 self.client = Client(self.cluster)
         except BaseException as exc:  # noqa: BLE001 - re-raised in the caller's thread by _ready
             self._error = exc
