@@ -553,7 +553,8 @@ def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None
         def share(self, plugin: object) -> object:
             return plugin
 
-        def map(self, fn: object, tasks: list[tuple], desc: str = "", cost: object = None) -> list[None]:
+        def map(self, fn: object, tasks: list[tuple], desc: str = "", cost: object = None,
+                progress: bool = False) -> list[None]:
             self.probes += len(tasks)
             return [None] * len(tasks)   # probes that failed: the search ends at its first check
 
@@ -627,7 +628,8 @@ def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -
         def share(self, plugin: object) -> object:
             return plugin
 
-        def map(self, fn: object, tasks: list[tuple], desc: str = "", cost: object = None) -> list[CandidateFit]:
+        def map(self, fn: object, tasks: list[tuple], desc: str = "", cost: object = None,
+                progress: bool = False) -> list[CandidateFit]:
             return self.fits
 
     class Plugin(_Recorded):
@@ -730,7 +732,8 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
         def share(self, plugin: object) -> object:
             return plugin
 
-        def map(self, fn: object, tasks: list[tuple], desc: str = "", cost: object = None) -> list[object]:
+        def map(self, fn: object, tasks: list[tuple], desc: str = "", cost: object = None,
+                progress: bool = False) -> list[object]:
             if fn is _without_task:
                 return [self.plugin.without(m, name, b) for _, m, name, b in tasks]
             assert fn is _refit_task

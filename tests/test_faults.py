@@ -77,6 +77,22 @@ def _double(x: int) -> int:
     return 2 * x
 
 
+def _sleep_then_triple(x: float) -> float:
+    time.sleep(x)
+    return 3 * x
+
+
+def test_a_batch_waiting_on_a_long_task_shows_its_progress_alive(monkeypatch, capsys) -> None:
+    """A diagnosis step can wait minutes on one refit: its progress bar is redrawn at every liveness poll, so its
+    elapsed time moves on stderr (before, it was drawn at the start and when the task ended, nothing between)."""
+    monkeypatch.setattr(batch, "LIVENESS_POLL_S", 0.2)
+    with batch.WorkerPool(1) as pool:
+        assert pool.map(_sleep_then_triple, [2.0], progress=True, desc="long task") == [6.0]
+    err = capsys.readouterr().err
+    waiting = [line for line in err.replace("\r", "\n").splitlines() if line.startswith("long task") and "0/1" in line]
+    assert len({line.split("[")[1].split("<")[0] for line in waiting}) >= 3, err   # at least 3 elapsed times shown
+
+
 def test_a_second_run_at_once_does_not_warn_about_the_dashboards_port() -> None:
     """Two hdrive runs at once on one machine: the second's local cluster takes a free port for its dashboard
     rather than warning on stderr that Dask's default (8787) is in use (seen in the default test run)."""

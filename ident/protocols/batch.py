@@ -258,7 +258,8 @@ def _gather(client: Any, fn: Callable[[T], R], items: list[T], progress: bool, d
             order: Sequence[int] | None = None) -> list[R]:
     """Submit (in ``order``, indices into ``items``: the first submitted first; default as given), then collect in
     input order; a worker's exception is re-raised here; ``BatchError`` when the cluster has no worker left while
-    tasks are pending (it would wait forever)."""
+    tasks are pending (it would wait forever). The progress bar is redrawn at every liveness poll, so that its
+    elapsed time shows a batch still at work through a task of several minutes."""
     from dask.distributed import wait
 
     order = range(len(items)) if order is None else order
@@ -275,6 +276,7 @@ def _gather(client: Any, fn: Callable[[T], R], items: list[T], progress: bool, d
                     client.cancel(list(pending))
                     raise BatchError(f"{where} has no workers left; {len(pending)} of {len(items)} {desc} "
                                      "unfinished") from None
+                bar.refresh()   # the elapsed time moves on while a long task runs: the user sees the work alive
                 continue
             for future in done:
                 results[index[future.key]] = future.result()  # re-raises a worker's exception here
