@@ -1,2 +1,2 @@
 """Helpers every part of hdrive shares and none owns: argument checks, the markdown table writer, the plot style,
-and output folders written atomically."""
+output folders written atomically, and the one-BLAS-thread limit its computations run under."""

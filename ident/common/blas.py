@@ -4,7 +4,7 @@ The fits' linear algebra is many small products and factorisations of tall, narr
 parameters). OpenBLAS's worker threads buy no wall time there and busy-wait between calls: measured on 2 cores, a
 serial diagnosis of a 3 s log took 8.8 s wall and 16.6 s of CPU with NumPy's default two BLAS threads, 8.7 s and
 8.6 s with one; a 10 s identification 2.8 s wall either way, 4.5 s against 2.8 s of CPU; the default test run 307 s
-against 212 s. The CPU they burn is taken from this process's own workers and from anything else on the machine, so
+against 221 s. The CPU they burn is taken from this process's own workers and from anything else on the machine, so
 on a loaded machine one thread is also the faster. The parallelism hdrive uses is across worker processes (Dask
 starts those with one BLAS thread already), and threads of this process in the compiled protocol loops.
 
