@@ -34,7 +34,8 @@ def loaded_run(load: int) -> dict:
             h.wait()
     lines = proc.stdout.strip().splitlines()
     return {"load_processes": load, "wall_s": round(wall, 1), "exit": proc.returncode,
-            "summary": lines[-1] if lines else proc.stderr[-300:], "load_average_1_5_15": [round(x, 2) for x in load_avg],
+            "summary": lines[-1] if lines else proc.stderr[-300:],
+            "load_average_1_5_15": [round(x, 2) for x in load_avg],
             "failures_and_warnings": [ln for ln in lines if ln.startswith(("FAILED", "ERROR", "tests/"))][:40]}
 
 
