@@ -87,10 +87,12 @@ def test_a_batch_waiting_on_a_long_task_shows_its_progress_alive(monkeypatch, ca
     elapsed time moves on stderr (before, it was drawn at the start and when the task ended, nothing between)."""
     monkeypatch.setattr(batch, "LIVENESS_POLL_S", 0.2)
     with batch.WorkerPool(1) as pool:
-        assert pool.map(_sleep_then_triple, [2.0], progress=True, desc="long task") == [6.0]
+        assert pool.map(_sleep_then_triple, [3.0], progress=True, desc="long task") == [9.0]
     err = capsys.readouterr().err
     waiting = [line for line in err.replace("\r", "\n").splitlines() if line.startswith("long task") and "0/1" in line]
-    assert len({line.split("[")[1].split("<")[0] for line in waiting}) >= 3, err   # at least 3 elapsed times shown
+    # a 3 s task polled every 0.2 s: elapsed 00:00, 00:01 and 00:02 all shown while it runs (2 s would leave the
+    # third to a poll landing after 2.0 s)
+    assert len({line.split("[")[1].split("<")[0] for line in waiting}) >= 3, err
 
 
 def test_a_second_run_at_once_does_not_warn_about_the_dashboards_port() -> None:
