@@ -241,8 +241,7 @@ class _Search:
         if not self.named or over is None or above_level(over, self.plugin.confident_levels()):
             return
         self.say("constancy check: refitting the final model on each half of the training data ...")
-        halves = self.pool.map(_half_task, [(self.shared, final, w, self.budget) for w in (0, 1)], progress=self.say.on,
-                               desc="constancy check")
+        halves = self._map(_half_task, [(self.shared, final, w, self.budget) for w in (0, 1)], "constancy check")
         if any(h is None for h in halves):
             self.constancy = {"checked": False, "why": "a half could not be refitted within its budget"}
             return
@@ -312,7 +311,7 @@ class _Search:
 
     def _search_size(self, model: Fitted, name: str) -> SizeSearch:
         def run(fn: Any, tasks: list[tuple]) -> list[Any]:
-            return self.pool.map(fn, tasks, desc=f"size search ({name})", progress=self.say.on)
+            return self._map(fn, tasks, f"size search ({name})")
 
         found = search_size(run, self.shared, model, name, self.budget,
                             inflation=lambda m: self.plugin.size_inflation(m, name), separable=SEPARABLE)
@@ -356,8 +355,13 @@ class _Search:
     def _refits(self, model: Fitted, passing: list[ScoreTest], desc: str) -> list[CandidateFit]:
         """Each candidate of ``passing`` refitted at ``model`` on the workers (``_refit_task``), the costliest
         started first (``plugin.refit_cost``); in ``passing``'s order."""
-        return self.pool.map(_refit_task, [(self.shared, model, t, self.budget) for t in passing], desc=desc,
-                             cost=[self.plugin.refit_cost(t.candidate) for t in passing], progress=self.say.on)
+        return self._map(_refit_task, [(self.shared, model, t, self.budget) for t in passing], desc,
+                         cost=[self.plugin.refit_cost(t.candidate) for t in passing])
+
+    def _map(self, fn: Any, tasks: list[tuple], desc: str, cost: list[float] | None = None) -> list[Any]:
+        """``fn`` over ``tasks`` on the pool's workers, in ``tasks``' order, with a progress bar on stderr when the
+        diagnosis reports progress (redrawn while a long task runs: a step can wait minutes on one refit)."""
+        return self.pool.map(fn, tasks, desc=desc, cost=cost, progress=self.say.on)
 
     def _replace(self, current: Fitted, name: str, reduced: Fitted, winner: CandidateFit | None) -> None:
         """The current model gives way to ``reduced``: its own effects, refitted from ``name``'s refit with ``name``
@@ -469,7 +473,7 @@ class _Search:
         removed = []
         while len(current.effects) >= 2:
             tasks = [(self.shared, current, e, self.budget) for e in current.effects]
-            reduced = self.pool.map(_without_task, tasks, desc="backward elimination", progress=self.say.on)
+            reduced = self._map(_without_task, tasks, "backward elimination")
             i = int(np.argmin([m.held_cost for m in reduced]))
             v = verdict(reduced[i], current)
             if v.accepted:
@@ -535,8 +539,7 @@ class _Search:
         ``current`` (the same task on the same model: the same fit, not made twice), else refitted here."""
         if self.reductions is not None and self.reductions[0] is current:
             return self.reductions[1][name]
-        return self.pool.map(_without_task, [(self.shared, current, name, self.budget)], desc=f"without {name}",
-                             progress=self.say.on)[0]
+        return self._map(_without_task, [(self.shared, current, name, self.budget)], f"without {name}")[0]
 
     def _record(self, model: Fitted, added: str | None, score: float | None, extra: dict[str, Any]) -> None:
         model = self.plugin.resimulated(model)
