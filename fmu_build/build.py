@@ -95,6 +95,7 @@ def model_vars_header(token: str, table: tuple[V.Variable, ...] = V.VARIABLES) -
     xlist("HD_REAL_INPUTS", [settable(v) for v in table if v.causality == "input"])
     for type_ in ("Real", "Integer", "Boolean"):
         xlist(f"HD_{type_.upper()}_OUTPUTS", [output(v) for v in table if v.causality == "output" and v.type == type_])
+    xlist("HD_REAL_LOCALS", [output(v) for v in table if v.causality == "local"])
     lines += ["#endif", ""]
     return "\n".join(lines)
 
@@ -143,7 +144,7 @@ def _unit_definitions() -> str:
 def _variability(v: V.Variable) -> str:
     if v.causality == "parameter":
         return "fixed"
-    if v.type == "Real":
+    if v.type == "Real" and v.causality != "local":  # a local (a work count) changes only in a doStep
         return "continuous"
     return "discrete"
 

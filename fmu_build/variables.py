@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 VarType = Literal["Real", "Integer", "Boolean"]
-Causality = Literal["independent", "parameter", "input", "output"]
+Causality = Literal["independent", "parameter", "input", "output", "local"]
 
 INT32_MAX = 2**31 - 1
 
@@ -43,7 +43,11 @@ def _out(name: str, vr: int, unit: str | None, desc: str, type_: VarType = "Real
     return Variable(name, vr, type_, "output", unit, None, None, None, desc)
 
 
-# Value references: 0 time, 1-19 drive parameters, 20-29 initial state, 30 input, 40-59 outputs,
+def _local(name: str, vr: int, unit: str | None, desc: str) -> Variable:
+    return Variable(name, vr, "Real", "local", unit, None, None, None, desc)
+
+
+# Value references: 0 time, 1-19 drive parameters, 20-29 initial state, 30 input, 40-59 outputs, 60-69 locals,
 # 100+ reserved for the optional effect parameters of the discrepancy library (default off).
 VARIABLES: tuple[Variable, ...] = (
     Variable("time", 0, "Real", "independent", "s", None, None, None, "Simulation time"),
@@ -80,6 +84,10 @@ VARIABLES: tuple[Variable, ...] = (
          "Friction torque F_m on the motor (J_m v_m' = T - g tau_s - F_m); while stuck, the holding reaction"),
     _out("load_friction_torque", 54, "N.m",
          "Friction torque F_l on the load (J_l v_l' = tau_s - F_l); while stuck, the holding reaction"),
+    # Not physics: the solver's work, readable (fmiGet) but no output to connect; the Modelica twin has none.
+    _local("model_evaluations", 60, None,
+           "Evaluations of the model's equations done by the doSteps since initialization (the unit of the per-step "
+           "work budget): what a simulation cost, counted the same on any machine"),
     # Optional effects of the discrepancy library (physics.md section 5). Every start value switches its effect
     # off; with all of them off the plant is the base model above, solved in closed form.
     _param("b_m", 100, 0.0, 0.0, 1e6, "N.m.s/rad", "Motor viscous friction coefficient"),
@@ -109,6 +117,7 @@ BY_NAME: dict[str, Variable] = {v.name: v for v in VARIABLES}
 PARAMETERS: tuple[Variable, ...] = tuple(v for v in VARIABLES if v.causality == "parameter")
 INPUTS: tuple[Variable, ...] = tuple(v for v in VARIABLES if v.causality == "input")
 OUTPUTS: tuple[Variable, ...] = tuple(v for v in VARIABLES if v.causality == "output")
+LOCALS: tuple[Variable, ...] = tuple(v for v in VARIABLES if v.causality == "local")
 
 # Base units of every unit used in the table, for the <UnitDefinitions> of both modelDescriptions.
 UNITS: dict[str, dict[str, int]] = {

@@ -556,9 +556,10 @@ def _add_diagnose(sub: Any) -> None:
                    help="candidates screened and refitted in parallel on this many local Dask worker processes "
                         "(default: the machine's cores; 0: serially in this process, no Dask)")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the candidates on this dask.distributed cluster")
-    p.add_argument("--candidate-budget", type=float, default=DEFAULT_CANDIDATE_BUDGET, metavar="EVALUATIONS",
-                   help="simulations of the training part allowed to each candidate's fit (an evaluation count, so "
-                        "the answer does not depend on the machine's speed); a candidate that needs more is reported "
+    p.add_argument("--candidate-budget", type=float, default=DEFAULT_CANDIDATE_BUDGET, metavar="LOGS",
+                   help="work allowed to each candidate's fit, in simulations of the training part at the cost of "
+                        "its first (counted in the FMU's model evaluations, so the answer does not depend on the "
+                        "machine's speed); a candidate that needs more is reported "
                         "as not ruled out and no effect is then named more than tentatively (default "
                         f"{DEFAULT_CANDIDATE_BUDGET:g}; 0: unlimited)")
     p.set_defaults(func=cmd_diagnose)

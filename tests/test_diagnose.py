@@ -424,14 +424,14 @@ def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -
         return m
 
     class Profile:
-        def probe_size(self, model, name, factor, budget):
+        def probe_size(self, model, name, factor, budget, reference=None):
             return fitted(model.state.size * factor, model.state.floor, model.state.n)
 
         def size_inflation(self, model, name):
             return 1.0   # the residual is white noise
 
     class NoProbes(Profile):
-        def probe_size(self, model, name, factor, budget):
+        def probe_size(self, model, name, factor, budget, reference=None):
             return None
 
     moved = search_candidate(Profile(), CandidateFit("viscous_motor", fitted(1.0)), None, 1.01)
@@ -455,7 +455,7 @@ def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -
     assert not near.size_unsettled and not small.size_unsettled
     # a profile that keeps falling: the search uses up its rounds still moving, and says so
     class Falling(Profile):
-        def probe_size(self, model, name, factor, budget):
+        def probe_size(self, model, name, factor, budget, reference=None):
             m = fitted(model.state.size * factor)
             m.train_cost = 1000.0 + 1e4 / m.state.size
             return m
@@ -468,7 +468,7 @@ def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -
     # variance here 2): chance, not a better fit; the search neither moves nor leaves its rival unsettled (measured:
     # a hysteresis rival crept 8 rounds for 0.08 noise variances and made the right name tentative)
     class Creeping(Profile):
-        def probe_size(self, model, name, factor, budget):
+        def probe_size(self, model, name, factor, budget, reference=None):
             m = fitted(model.state.size * factor)
             m.train_cost = 1000.0 - 0.1 * math.log(m.state.size)
             return m
@@ -879,7 +879,7 @@ def test_the_size_search_counts_chance_with_the_residuals_correlation() -> None:
             m.state = SimpleNamespace(size=size, sim=None)
             return m
 
-        def probe_size(self, model, name, factor, budget):
+        def probe_size(self, model, name, factor, budget, reference=None):
             return self.fitted(model.state.size * factor)
 
         def size_inflation(self, model, name):
@@ -922,6 +922,40 @@ def test_a_final_model_that_does_not_hold_along_the_log_names_nothing_confidentl
     assert [(e.name, e.tentative) for e in own.effects] == [("hysteresis", False)]
     assert own.constancy["p_value"] > 0.01 and any("hold between the two halves" in line for line in own.summary)
     assert own.to_dict()["constancy"]["df"] == 5
+
+
+def test_a_budget_counts_the_fmu_work_not_the_simulations():
+    """One budget over two problems on the same log (as a continuation's windows share one): the first simulation
+    sets the unit and costs its samples; a model that is costlier to simulate (a Dahl hysteresis held at a large size
+    and a stiff element: small substeps) pays what the FMU counted relative to it, so a fit that walks to such sizes
+    runs out after fewer simulations; a simulation the budget cannot pay for at the unit is refused before it runs."""
+    from ident.diagnosis.models.problem import ModelProblem
+    from ident.fitting.identify import BudgetExceeded, EvaluationBudget, identify
+
+    log, _ = load(CLEAN, **SHORT)
+    fit = identify(log)
+    stop = log.n // 2
+    meter = EvaluationBudget(6.0 * stop)
+    cheap = ModelProblem(log, fit.params, (), None, stop, fit.sigma_load_rad, fixed={"b_l": 1e-9}, budget=meter)
+    big = {"hysteresis_torque": 100 * fit.params.f_l, "hysteresis_stiffness": 1e3 * fit.params.K_s}
+    costly = ModelProblem(log, fit.params, (), None, stop, fit.sigma_load_rad, budget=meter, fixed=big)
+    try:
+        cheap.residuals(fit.theta)
+        assert meter.used == stop
+        unit = cheap.plant.model_evaluations() / stop
+        costly.residuals(fit.theta)
+        ratio = costly.plant.model_evaluations() / (unit * stop)
+        assert ratio > 3.0
+        assert meter.used == pytest.approx(stop * (1.0 + ratio))
+        while meter.used + stop <= meter.limit:
+            cheap.residuals(fit.theta + 1e-9 * (meter.used / stop))   # a new point: simulated and charged again
+        before = meter.used
+        with pytest.raises(BudgetExceeded):
+            cheap.residuals(fit.theta + 1e-3)
+        assert meter.used == before and cheap.exhausted
+    finally:
+        cheap.close()
+        costly.close()
 
 
 def test_a_candidate_out_of_budget_blocks_a_confident_name():

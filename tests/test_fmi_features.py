@@ -120,6 +120,32 @@ def test_simulate_fmu_with_input_table(fmu_any: Path) -> None:
     np.testing.assert_allclose(got, ref[: len(got)], rtol=1e-12, atol=1e-18)
 
 
+def test_model_evaluations_count_the_work_and_follow_reset_and_state(fmu_any: Path) -> None:
+    """The local ``model_evaluations`` (the doSteps' work since initialization, what the diagnosis's budgets count):
+    readable by a plain FMI tool (fmpy's simulate_fmu), 0 after initialization, growing with the steps and with a
+    costlier model (an effect on: the general propagator), back to 0 on reset, and part of the FMU state."""
+    md = read_model_description(str(fmu_any))
+    var = next(v for v in md.modelVariables if v.name == "model_evaluations")
+    assert var.causality == "local" and var.variability == "discrete"
+    res = simulate_fmu(str(fmu_any), stop_time=0.05, step_size=1e-3, output=["model_evaluations"],
+                       start_values={"motor_torque": 0.03})
+    counts = res["model_evaluations"]
+    assert counts[0] == 0 and counts[-1] > 0 and np.all(np.diff(counts) >= 0)
+    fmi = 2 if md.fmiVersion == "2.0" else 3
+    torque = 0.03 * np.sin(np.arange(400) * 0.05)
+    with Plant(fmi_version=fmi, fmu_path=fmu_any) as plant:
+        assert plant.model_evaluations() == 0
+        plant.positions(torque, 1e-3)
+        base = plant.model_evaluations()
+        saved = plant.save_state()
+        plant.reset(DriveParams().with_values(b_l=1e-4))
+        assert plant.model_evaluations() == 0
+        plant.positions(torque, 1e-3)
+        assert plant.model_evaluations() > 3 * base   # the general propagator's substeps cost more than segments
+        plant.restore_state(saved)
+        assert plant.model_evaluations() == base
+
+
 @pytest.mark.skipif(shutil.which("cmake") is None and not Path(sys.executable).with_name("cmake").exists(),
                     reason="fmpy compile needs cmake (pip package 'cmake')")
 def test_fmpy_compile_rebuilds_from_the_shipped_sources(fmu_any: Path, tmp_path: Path) -> None:

@@ -117,7 +117,8 @@ def layout() -> dict[str, tuple[int, str]]:
     fields += [(v.name, "i") for v in V.OUTPUTS if v.type == "Integer"]
     fields += [(v.name, "i") for v in V.OUTPUTS if v.type == "Boolean"]
     fields += [("time", "d"), ("motor_dir", "i"), ("load_dir", "i"), ("hyst_dir", "i"), ("hyst_d0", "d"),
-               ("hyst_z0", "d"), ("event_count", "q"), ("phase", "i"), ("start_time", "d")]
+               ("hyst_z0", "d"), ("event_count", "q"), ("model_evaluations", "d"), ("phase", "i"),
+               ("start_time", "d")]
     out, offset = {}, 16
     for name, fmt in fields:
         out[name] = (offset, fmt)

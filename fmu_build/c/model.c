@@ -78,6 +78,9 @@ HDCausality hd_causality(uint32_t vr, HDType type) {
 #define X(v, name, unit) if (vr == v) return HD_OUTPUT;
         HD_REAL_OUTPUTS(X)
 #undef X
+#define X(v, name, unit) if (vr == v) return HD_LOCAL;
+        HD_REAL_LOCALS(X)
+#undef X
         break;
     case HD_INTEGER:
 #define X(v, name, lo, hi, start, unit) if (vr == v) return HD_PARAMETER;
@@ -109,6 +112,7 @@ HDStatus hd_get_real(const HDModel *m, uint32_t vr, double *value, char *err, si
 #undef X
 #define X(v, name, unit) if (vr == v) { *value = m->name; return HD_OK; }
     HD_REAL_OUTPUTS(X)
+    HD_REAL_LOCALS(X)
 #undef X
     return unknown_vr(vr, "Real", err, errlen);
 }
@@ -185,7 +189,7 @@ static HDStatus check_all(const HDModel *m, char *err, size_t errlen) {
 /* ---------------------------------------------------------------- FMU state snapshots -------------------- */
 
 #define HD_SNAPSHOT_MAGIC 0x48444d53u /* "HDMS" */
-#define HD_SNAPSHOT_FORMAT 2u         /* field-by-field layout (1 was the raw struct) */
+#define HD_SNAPSHOT_FORMAT 3u         /* field-by-field layout (1 was the raw struct; 3 adds model_evaluations) */
 #define HD_SNAPSHOT_HEADER (4 * sizeof(uint32_t))
 
 static uint32_t token_hash(void) { /* FNV-1a of the instantiation token: tells builds apart */
@@ -226,6 +230,7 @@ static size_t snapshot_fields(HDSnapshot *s, unsigned char *p, int write) {
     FIELD(m->hyst_d0);
     FIELD(m->hyst_z0);
     FIELD(m->event_count);
+    FIELD(m->model_evaluations);
     FIELD(s->phase);
     FIELD(s->start_time);
 #undef FIELD
@@ -278,10 +283,11 @@ HDStatus hd_snapshot_check(const HDSnapshot *s, char *err, size_t errlen) {
         snprintf(err, errlen, "FMU state: a stuck body moves (v_m = %g rad/s, v_l = %g rad/s)", m->v_m, m->v_l);
         return HD_ERROR;
     }
-    if (!(fabs(m->hyst_z0) <= 2.0 * m->hysteresis_torque) || m->event_count < 0) {
-        snprintf(err, errlen, "FMU state: hysteresis anchor z0 = %g N.m beyond 2 hysteresis_torque = %g N.m, or "
-                              "event count %lld < 0", m->hyst_z0, 2.0 * m->hysteresis_torque,
-                 (long long)m->event_count);
+    if (!(fabs(m->hyst_z0) <= 2.0 * m->hysteresis_torque) || m->event_count < 0
+        || !(m->model_evaluations >= 0.0 && m->model_evaluations <= 9007199254740992.0)) {
+        snprintf(err, errlen, "FMU state: hysteresis anchor z0 = %g N.m beyond 2 hysteresis_torque = %g N.m, "
+                              "event count %lld < 0, or model_evaluations %g outside [0, 2^53]", m->hyst_z0,
+                 2.0 * m->hysteresis_torque, (long long)m->event_count, m->model_evaluations);
         return HD_ERROR;
     }
     return HD_OK;
@@ -510,6 +516,7 @@ HDStatus hd_initialize(HDModel *m, double t0, char *err, size_t errlen) {
     m->load_dir = m->v_l < 0 ? -1 : 1;
     m->input_work = m->friction_work = 0.0;
     m->event_count = 0;
+    m->model_evaluations = 0.0;
     m->hysteresis_state = m->hyst_z0 = 0.0; /* the hysteresis element starts relaxed, on a rising branch */
     m->hyst_dir = 1;
     m->hyst_d0 = fx_spring(m, m->q_m, m->q_l).d;
@@ -1276,6 +1283,7 @@ HDStatus hd_do_step(HDModel *m, double h, HDStepStats *stats, char *err, size_t 
     if (stats) *stats = st;
     if (status != HD_OK) return HD_ERROR;
     w.time = m->time + h;
+    w.model_evaluations += (double)work.used; /* exact: a double counts every integer up to 2^53 */
     update_outputs(&w);
     if (!outputs_finite(&w)) {
         snprintf(err, errlen, "an output overflowed during a step of %g s at t = %g s; use smaller torques or steps",

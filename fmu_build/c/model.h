@@ -62,6 +62,7 @@ typedef struct {
     int32_t hyst_dir;                  /* +1 / -1: direction of twisting on the current hysteresis branch */
     double hyst_d0, hyst_z0;           /* branch anchor: deflection and z where the branch started */
     int64_t event_count;               /* switching events handled since initialization */
+    double model_evaluations;          /* the doSteps' work since initialization (a local variable; "work budget") */
 
     /* Outputs derived from the state (refreshed after every change). */
     double spring_torque, arm_position, deflection, motor_friction_torque, load_friction_torque;
@@ -69,7 +70,7 @@ typedef struct {
 } HDModel;
 
 /* Causality of a value reference, as in the variable table. */
-typedef enum { HD_UNKNOWN = 0, HD_INDEPENDENT, HD_PARAMETER, HD_INPUT, HD_OUTPUT } HDCausality;
+typedef enum { HD_UNKNOWN = 0, HD_INDEPENDENT, HD_PARAMETER, HD_INPUT, HD_OUTPUT, HD_LOCAL } HDCausality;
 typedef enum { HD_REAL = 0, HD_INTEGER, HD_BOOLEAN } HDType;
 
 void hd_set_defaults(HDModel *m);

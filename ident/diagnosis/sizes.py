@@ -62,9 +62,9 @@ Mapper = Callable[[Callable[[tuple], Any], list[tuple]], list[Any]]
 
 def probe_task(args: tuple) -> Fitted | None:
     """One probe (``plugin.probe_size``), a top-level function for the workers; a probe that fails is left out."""
-    plugin, model, name, factor, budget = args
+    plugin, model, name, factor, budget, reference = args
     try:
-        out = plugin.probe_size(model, name, factor, budget)
+        out = plugin.probe_size(model, name, factor, budget, reference)
     except Exception:  # noqa: BLE001 - a check, not a result: its failure must not lose the diagnosis
         return None
     if out is not None:
@@ -90,8 +90,10 @@ def search_size(run: Mapper, plugin: ModelPlugin, model: Fitted, name: str, budg
                 separable: float = 0.0) -> SizeSearch:
     """The size search of effect ``name`` from ``model`` (module docstring). ``run(fn, tasks)`` maps ``probe_task``
     over the workers; ``plugin`` is what the tasks carry to them; ``budget`` is a candidate's, each probe may use
-    ``PROBE_BUDGETS`` of it. A move that has lowered the training cost less than ``min_gain`` times since the last
-    check ends the search there, unchecked. ``inflation(model)``: the size's ``ModelPlugin.size_inflation`` there
+    ``PROBE_BUDGETS`` of it, counted at the cost of simulating ``model`` (a probe far out along a size that makes
+    the model costlier to simulate pays for it: a search that walks to absurd sizes stays bounded in work). A move
+    that has lowered the training cost less than ``min_gain`` times since the last check ends the search there,
+    unchecked. ``inflation(model)``: the size's ``ModelPlugin.size_inflation`` there
     (None: 1). A check whose two probes both fit worse, but unequally, is followed by one probe at the vertex of
     the parabola through them (``vertex``); a move there that lowered the training cost by less than ``separable``
     noise variances is a refinement, not a doubt."""
@@ -100,11 +102,11 @@ def search_size(run: Mapper, plugin: ModelPlugin, model: Fitted, name: str, budg
     shift, stalled = 1.0, False   # the product of the vertex steps taken; whether a move left the check's bracket
     for r in range(SIZE_ROUNDS):
         factors = (1.0 - SIZE_PROBE, 1.0 + SIZE_PROBE) if g is None else (g, g * g)
-        probes = run(probe_task, [(plugin, cur, name, f, budget) for f in factors])
+        probes = run(probe_task, [(plugin, cur, name, f, budget, model) for f in factors])
         better = _better(cur, probes, inflation)
         if not better and g is None:   # a check; its vertex only where a round is left to check again
             step = vertex(cur, probes, min_gain, inflation) if r < SIZE_ROUNDS - 1 else None
-            probe = None if step is None else run(probe_task, [(plugin, cur, name, step, budget)])[0]
+            probe = None if step is None else run(probe_task, [(plugin, cur, name, step, budget, model)])[0]
             if probe is None or not _better(cur, [probe], inflation):
                 return _found(name, model, cur, list(zip(factors, probes)), shift, stalled, separable)
             cur, shift = probe, shift * step

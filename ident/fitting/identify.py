@@ -107,19 +107,39 @@ class BudgetExceeded(RuntimeError):
 
 
 class EvaluationBudget:
-    """Simulations a fit may run, counted in samples simulated (a simulation of ``stop`` samples costs ``stop``), so
-    that a budget means the same on any machine and for any window length; one budget can span the many problems of
-    a continuation (``fit_pipeline``). ``limit`` None: unlimited (the count is still kept)."""
+    """The work a fit may do, so that a budget means the same on any machine and bounds the work itself, not only the
+    number of simulations.
 
-    def __init__(self, limit: float | None = None):
+    The work of a simulation is the FMU's own count of model evaluations (``Plant.model_evaluations``); the budget
+    states it in samples simulated at a reference cost of ``unit`` evaluations per sample (None: the first
+    simulation charged sets it). A simulation of ``stop`` samples at the reference cost costs ``stop``; one whose
+    model costs k times more per sample costs k times more. Why: a simulation's cost varies by orders of magnitude
+    with the model (measured on a two-effect log: a hysteresis size search's probes at 446x the fitted size cost 250
+    times more per sample than the fit, and one refit took 11 minutes within a count of simulations). One budget can
+    span the many problems of a continuation (``fit_pipeline``): windows of any length, one reference cost.
+    ``limit`` None: unlimited (the count is still kept)."""
+
+    def __init__(self, limit: float | None = None, unit: float | None = None):
         self.limit = limit
+        self.unit = unit
         self.used = 0.0
 
-    def charge(self, samples: int) -> None:
-        """Count a simulation of ``samples`` samples; raise ``BudgetExceeded`` if the budget cannot pay for it."""
+    def check(self, samples: int) -> None:
+        """Raise ``BudgetExceeded`` if the budget cannot pay for a simulation of ``samples`` samples at the
+        reference cost (asked before it runs; what it really cost is charged after, ``charge``)."""
         if self.limit is not None and self.used + samples > self.limit:
             raise BudgetExceeded(f"the fit used up its budget of {self.limit / max(samples, 1):.4g} simulations")
-        self.used += samples
+
+    def charge(self, samples: int, evaluations: float | None = None) -> None:
+        """Count a simulation of ``samples`` samples that did ``evaluations`` model evaluations (None: a simulation
+        that failed, or one whose cost is not known, counts at the reference cost)."""
+        if evaluations is None:
+            self.used += samples
+            return
+        evaluations = max(float(evaluations), 1.0)   # a log the model spends stuck throughout costs next to nothing
+        if self.unit is None:
+            self.unit = evaluations / max(samples, 1)
+        self.used += evaluations / self.unit
 
 
 # ------------------------------------------------------------------------------------------- problem -----------
@@ -152,7 +172,7 @@ class OutputError:
         self.verbose = False        # IPOPT's own output (``fit_ipopt``)
         self.fd_steps: np.ndarray | None = None  # wider finite-difference steps while searching (``jacobian``)
         self.interrupted = False    # a KeyboardInterrupt arrived inside a CasADi callback (``fit_ipopt``)
-        self.budget: EvaluationBudget | None = None  # simulations allowed (None: unlimited)
+        self.budget: EvaluationBudget | None = None  # work allowed (None: unlimited)
         self.exhausted = False      # a simulation was refused by the budget (``fit_ipopt`` raises BudgetExceeded)
         self._cache: dict[bytes, np.ndarray] = {}
 
@@ -188,19 +208,31 @@ class OutputError:
             raise BudgetExceeded("the fit used up its budget")
         key = np.asarray(theta, dtype=float).tobytes()
         if key not in self._cache:
-            if self.budget is not None:
-                try:
-                    self.budget.charge(self.stop)
-                except BudgetExceeded:
-                    self.exhausted = True
-                    raise
             if len(self._cache) >= self.CACHE:
                 self._cache.pop(next(iter(self._cache)))
-            q_m, q_l, _ = self.simulate(np.asarray(theta, dtype=float))
+            q_m, q_l, _ = self._simulate_charged(np.asarray(theta, dtype=float))
             self.evaluations += 1
             self._cache[key] = np.concatenate([(q_l - self.y_l) / self.sigma_l,
                                                (q_m - self.y_m) * (self.w_m / self.sigma_m)])
         return self._cache[key]
+
+    def _simulate_charged(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """``simulate``, paid from the budget (when there is one): refused when it cannot pay for a simulation at its
+        reference cost, then charged what the FMU counted (a simulation that fails: the reference cost)."""
+        if self.budget is None:
+            return self.simulate(theta)
+        try:
+            self.budget.check(self.stop)
+        except BudgetExceeded:
+            self.exhausted = True
+            raise
+        try:
+            out = self.simulate(theta)
+        except BaseException:
+            self.budget.charge(self.stop)
+            raise
+        self.budget.charge(self.stop, self.plant.model_evaluations())
+        return out
 
     def set_sigma_load(self, sigma: float) -> None:
         """Weigh the load rows with a new noise level (forgets the cached simulations)."""

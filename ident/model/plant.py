@@ -330,6 +330,14 @@ class Plant:
         self.time += dt
         return self.sample()
 
+    def model_evaluations(self) -> float:
+        """Evaluations of the model's equations the doSteps did since the last reset (the FMU's local variable
+        ``model_evaluations``, the unit of its per-step work budget): what the simulation so far cost, counted the
+        same on any machine (the diagnosis's fit budgets are counted in it)."""
+        vr = self._vr["model_evaluations"]
+        values = self._fmu.getReal([vr]) if self.fmi_version == 2 else self._fmu.getFloat64([vr])
+        return float(values[0])
+
     def sample(self) -> Sample:
         """Outputs at the current communication point."""
         if self._get_outputs() > 1:

@@ -55,7 +55,8 @@ class CandidateFit:
     ``exhausted``: the fit used up its evaluation budget before it converged; ``model`` is then the best point it
     simulated (None if none), judged like any other, and the candidate is not ruled out unless it is named;
     ``veto``: a reason of the model's own not to name it even if it scores (e.g. a parameter at its bound);
-    ``evaluations``: the simulations used, in whole training logs; ``start``: where the fit started;
+    ``evaluations``: the work used, in training logs simulated at the fit's reference cost; ``start``: where the
+    fit started;
     ``size_probes``: the refits of the size search that followed (``ident.diagnosis.sizes.search_candidate``),
     ``size_moved``: whether it moved the size, ``size_unsettled``: whether it used up its rounds still moving (the
     refit may fit better still)."""
@@ -112,8 +113,8 @@ class ModelPlugin(ABC):
 
     @abstractmethod
     def refit(self, model: Fitted, test: ScoreTest, budget: float | None) -> CandidateFit:
-        """``model`` with the candidate of ``test`` added, fitted from the screen's step; ``budget``: simulations
-        allowed, in whole training logs (None: unlimited)."""
+        """``model`` with the candidate of ``test`` added, fitted from the screen's step; ``budget``: the work
+        allowed, in training logs simulated at the fit's start's cost (``EvaluationBudget``; None: unlimited)."""
 
     @abstractmethod
     def without(self, model: Fitted, name: str, budget: float | None) -> Fitted:
@@ -134,10 +135,12 @@ class ModelPlugin(ABC):
     def magnitude(self, model: Fitted, name: str) -> Magnitude:
         """Effect ``name``'s magnitude in ``model``, with its interval."""
 
-    def probe_size(self, model: Fitted, name: str, factor: float, budget: float | None) -> Fitted | None:
+    def probe_size(self, model: Fitted, name: str, factor: float, budget: float | None,
+                   reference: Fitted | None = None) -> Fitted | None:
         """``model`` refitted with effect ``name``'s size held at ``factor`` times its value and every other unknown
         free (a point of the size's profile: the engine's check that the log pins the size as closely as the local
-        interval says); ``budget`` as ``refit``. None: the plug-in has no such refit (the local interval stands)."""
+        interval says); ``budget`` as ``refit``, counted at the cost of simulating ``reference`` (None: of the
+        probe's start). None: the plug-in has no such refit (the local interval stands)."""
         return None
 
     def size_inflation(self, model: Fitted, name: str) -> float:

@@ -169,24 +169,28 @@ def _make(effects: tuple[str, ...], scales: LogScales, budget: EvaluationBudget 
     return ModelProblem(log, base, effects, scales, stop, sigma_load, budget=budget, sens=sens, central=False)
 
 
-def simulate_full(log: DriveLog, problem: ModelProblem, theta: np.ndarray) -> dict[str, np.ndarray]:
+def simulate_full(log: DriveLog, problem: ModelProblem, theta: np.ndarray) -> tuple[dict[str, np.ndarray], float]:
     """The model's simulation of the WHOLE log (training + held back) with the sensor offsets of the training part,
-    plus the states used to localise residuals."""
+    plus the states used to localise residuals; and what simulating the training part cost, in the FMU's model
+    evaluations per training sample (the unit a budget counted from this model uses, ``EvaluationBudget``)."""
     p = problem.params(theta)
     d0 = float(theta[3]) * p.f_l / p.K_s
     q_m0 = float(problem.y_m[0])
     outputs = ("q_m", "q_l", "v_m", "v_l", "spring_torque")
+    s = problem.stop
     with Plant(p) as plant:
         plant.reset(p, q_m_start=q_m0, q_l_start=p.load_angle_at(q_m0, d0), v_m_start=0.0, v_l_start=0.0)
-        traj = plant.trajectory(log.motor_torque_Nm[:-1], log.dt, outputs)
-    s = problem.stop
+        head = plant.trajectory(log.motor_torque_Nm[:s - 1], log.dt, outputs)   # the same doSteps as in one go
+        work = max(plant.model_evaluations(), 1.0) / s
+        tail = plant.trajectory(log.motor_torque_Nm[s - 1:-1], log.dt, outputs)
+    traj = np.vstack([head, tail[1:]])
     y_m = log.motor_pos_rad + 0.5 * problem.count
     sim = {k: traj[:, i] for i, k in enumerate(outputs)}
     sim["q_l"] = sim["q_l"] + float(np.mean(log.load_pos_rad[:s] - sim["q_l"][:s]))
     sim["q_m"] = sim["q_m"] + float(np.mean(y_m[:s] - sim["q_m"][:s]))
     sim["res_l"] = log.load_pos_rad - sim["q_l"]
     sim["res_m"] = y_m - sim["q_m"]
-    return sim
+    return sim, work
 
 
 def rms(x: np.ndarray) -> float:

@@ -17,7 +17,7 @@
   part; when the current model leans on a parameter bound (it cannot fit the log inside the physical range, so a
   refit from it starts in the wrong basin) the candidate's model is identified from scratch
   (``identify.fit_pipeline``, the screen's step among its first window's starting points). Every fit runs within
-  an evaluation budget (whole training logs simulated).
+  an evaluation budget (the FMU's model evaluations, in training logs simulated at the fit's start's cost).
 - **Converge**: an accepted model still above the noise is identified from scratch with its effects too (the base
   model's parameters may have bent to mimic the missing effect into a far basin); the better one is kept.
 """
@@ -45,7 +45,8 @@ from ...fitting.logs import DriveLog, LogError
 from ...fitting.noise import at_noise_level, residual_noise_std
 from ...fitting.result import larger_variances
 from ...model.effects import EFFECTS
-from ...model.params import DriveParams
+from ...model.params import DriveParams, ParameterError
+from ...model.plant import PlantError
 from .. import CONFIDENT_ALPHA, CONFIDENT_OVER_NOISE, MIN_GAIN, above_level
 from ..result import DiagnosisStep
 from ..screening import ScoreTest, best_of_grid, detection_limit, partial_out, quote_limits, score_test
@@ -86,7 +87,8 @@ SIMULATION_S = {"viscous_motor": 0.026, "viscous_load": 0.022, "stribeck": 0.094
 @dataclass
 class TwoInertiaState:
     """A two-inertia model: its unknowns, the drive they give, the base drive and log scales its coordinates use,
-    and (when kept) the simulation of the whole log; ``rigid``: the rigid kinematics (no unknowns)."""
+    and (when kept) the simulation of the whole log; ``rigid``: the rigid kinematics (no unknowns); ``work``: what
+    simulating its training part costs (model evaluations per sample), the unit of a size search's budgets."""
 
     theta: np.ndarray
     params: DriveParams
@@ -97,6 +99,7 @@ class TwoInertiaState:
     covs: tuple[np.ndarray, np.ndarray] | None = None   # (noise-only, sandwich) that ``cov`` is made of
     rigid: bool = False
     sens: Sensitivity = field(default_factory=dict)
+    work: float | None = None   # model evaluations per training sample of its simulation (``simulate_full``)
 
     def problem(self, full: DriveLog, effects: tuple[str, ...], stop: int, sigma: float, **kw: Any) -> ModelProblem:
         """The output-error problem of this model's drive with ``effects`` on."""
@@ -146,7 +149,7 @@ class TwoInertiaPlugin(ModelPlugin):
         base = fit.params
         problem = ModelProblem(self.full, base, (), None, self.stop, self.sigma)  # type: ignore[arg-type]
         try:
-            sim = simulate_full(self.full, problem, fit.theta)
+            sim, _ = simulate_full(self.full, problem, fit.theta)
         finally:
             problem.close()
         self.scales = LogScales.from_simulation(sim, self.stop, base)
@@ -172,7 +175,7 @@ class TwoInertiaPlugin(ModelPlugin):
         """The model ``effects`` at ``theta`` simulated over the whole log; ``keep``: keep the simulation."""
         problem = ModelProblem(self.full, base, _fmu_effects(effects), scales, self.stop, self.sigma, sens=sens)
         try:
-            sim = simulate_full(self.full, problem, theta)
+            sim, work = simulate_full(self.full, problem, theta)
             params = problem.params(theta)
         finally:
             problem.close()
@@ -181,7 +184,7 @@ class TwoInertiaPlugin(ModelPlugin):
         metrics = _metrics_of(self.full, sim["res_l"], sim["res_m"], s, self.sigma)
         held = load[s:] ** 2
         state = TwoInertiaState(np.asarray(theta, dtype=float), params, base, scales, sim if keep else None,
-                                sens=dict(sens or {}))
+                                sens=dict(sens or {}), work=work)
         return Fitted(effects, float(np.sum(load[:s] ** 2)), float(held.sum()), held, s, int(np.size(theta)) + 2,
                       metrics, state)
 
@@ -337,6 +340,7 @@ class TwoInertiaPlugin(ModelPlugin):
         up there raises."""
         st = model.state
         x = self._start(model, test, sens)
+        meter.unit = meter.unit or self._work(effects, np.concatenate([st.theta, x]), st, sens)
         coords = coordinates(test.candidate, st.scales, sens.get(test.candidate))
         rows = [np.concatenate([st.theta[4:], x])]
         for point in grid(test.candidate, st.scales):  # the grid's other points as further starts
@@ -347,6 +351,20 @@ class TwoInertiaPlugin(ModelPlugin):
                                                np.unique(np.array(rows), axis=0))
         problem.close()
         return theta, False
+
+    def _work(self, effects: tuple[str, ...], theta: np.ndarray, st: TwoInertiaState, sens: Sensitivity
+              ) -> float | None:
+        """What simulating the training part at ``theta`` with ``effects`` on costs per sample: the unit of a budget
+        spent from there by a continuation (``fit_pipeline``), whose first window alone would set it from a fraction
+        of the log. None where the FMU refuses that point (the first window's simulation then sets it)."""
+        problem = ModelProblem(self.full, st.base, _fmu_effects(effects), st.scales, self.stop, self.sigma, sens=sens)
+        try:
+            problem.residuals(theta)
+            return max(problem.plant.model_evaluations(), 1.0) / self.stop
+        except (PlantError, ParameterError):
+            return None
+        finally:
+            problem.close()
 
     def _flexibility(self) -> CandidateFit:
         try:
@@ -368,14 +386,15 @@ class TwoInertiaPlugin(ModelPlugin):
         return self._fit_from(model, effects, st.theta[keep], budget, max_iter=REFIT_ITER, clip=False)
 
     def _fit_from(self, model: Fitted, effects: tuple[str, ...], head: np.ndarray, budget: float | None, *,
-                  max_iter: int = 500, pin: list[int] | tuple[int, ...] = (), clip: bool = True) -> Fitted:
+                  max_iter: int = 500, pin: list[int] | tuple[int, ...] = (), clip: bool = True,
+                  unit: float | None = None) -> Fitted:
         """``model``'s drive with ``effects`` on, refitted on the training part by IPOPT from ``head`` within
         ``budget`` (as ``refit``; a fit that runs out keeps the best point it simulated), simulated over the whole
         log. ``pin``: unknowns held where ``head`` has them (inside their bounds); ``clip``: the start moved inside
-        the bounds."""
+        the bounds; ``unit``: the budget's reference cost (``EvaluationBudget``; None: its first simulation's)."""
         st = model.state
         problem = st.problem(self.full, effects, self.stop, self.sigma, central=False,
-                             budget=EvaluationBudget(None if budget is None else budget * self.stop))
+                             budget=EvaluationBudget(None if budget is None else budget * self.stop, unit))
         try:
             lo, hi = problem.bounds()
             if pin:
@@ -399,7 +418,7 @@ class TwoInertiaPlugin(ModelPlugin):
         if not at_bound(model.state.theta):
             return self._continued(model, budget) if unfinished else (self.resimulated(model), "")
         st = model.state
-        meter = EvaluationBudget(None if budget is None else budget * self.stop)
+        meter = EvaluationBudget(None if budget is None else budget * self.stop, st.work)
         try:
             problem, theta, _, _, _ = fit_pipeline(truncate_log(self.full, self.stop), st.base,
                                                    ModelProblem.maker(_fmu_effects(model.effects), st.scales,
@@ -407,7 +426,7 @@ class TwoInertiaPlugin(ModelPlugin):
             problem.close()
         except BudgetExceeded:
             return self.resimulated(model), (f"identifying {' + '.join(model.effects)} from scratch used up its "
-                                              f"budget ({meter.used / self.stop:.0f} training logs simulated): the "
+                                              f"budget ({meter.used / self.stop:.0f} training logs' work): the "
                                               "refitted model is kept")
         fresh = self.evaluate(model.effects, theta, st.base, st.scales, keep=True, sens=st.sens)
         if fresh.train_cost < model.train_cost:
@@ -445,7 +464,8 @@ class TwoInertiaPlugin(ModelPlugin):
             lo = 0.0
         return Magnitude(mag, (lo, hi), EFFECTS[name].unit, values, _size_doubt(name, st.scales))
 
-    def probe_size(self, model: Fitted, name: str, factor: float, budget: float | None) -> Fitted | None:
+    def probe_size(self, model: Fitted, name: str, factor: float, budget: float | None,
+                   reference: Fitted | None = None) -> Fitted | None:
         """The effect's linear coordinates (its size: the only one for every effect but the kinematic error, whose
         sine and cosine parts, of its 2/rev and where fitted its 4/rev, are held together, fixing its phases too) held
         at ``factor`` times their values; the other unknowns start where the model's covariance predicts them along
@@ -461,7 +481,8 @@ class TwoInertiaPlugin(ModelPlugin):
         head = st.theta.copy()
         head[held] += delta
         head[free] += cov[np.ix_(free, held)] @ np.linalg.lstsq(cov[np.ix_(held, held)], delta, rcond=None)[0]
-        return self._fit_from(model, model.effects, head, budget, pin=held)
+        return self._fit_from(model, model.effects, head, budget, pin=held,
+                              unit=None if reference is None else reference.state.work)
 
     def half(self, model: Fitted, which: int, budget: float | None) -> Fitted | None:
         """``model`` refitted on the first (``which`` 0) or the second half of the training part alone, every unknown
