@@ -455,7 +455,10 @@ def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -
     assert not near.size_unsettled and not small.size_unsettled
     # a profile that keeps falling: the search uses up its rounds still moving, and says so
     class Falling(Profile):
+        references: list = []
+
         def probe_size(self, model, name, factor, budget, reference=None):
+            self.references.append(reference)
             m = fitted(model.state.size * factor)
             m.train_cost = 1000.0 + 1e4 / m.state.size
             return m
@@ -464,6 +467,8 @@ def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -
     start.train_cost = 1000.0 + 1e4
     restless = search_candidate(Falling(), CandidateFit("viscous_motor", start), None, 1.01)
     assert restless.size_moved and restless.size_unsettled and restless.size_probes == 2 * SIZE_ROUNDS
+    # every probe of the walk, out to 1.1^128 times the start, is paid at the cost of simulating the search's origin
+    assert len(Falling.references) == 2 * SIZE_ROUNDS and all(r is start for r in Falling.references)
     # a profile that keeps falling by less than one residual variance a round (0.01 noise variances, the residual
     # variance here 2): chance, not a better fit; the search neither moves nor leaves its rival unsettled (measured:
     # a hysteresis rival crept 8 rounds for 0.08 noise variances and made the right name tentative)
