@@ -227,10 +227,10 @@ def test_each_effect_not_named_says_why_in_numbers() -> None:
     named = [NamedEffect("viscous_load", 1.0, (0.5, 1.5), "", "", None, None)]
     out = _unseen([step([], []), old, last, step([], [])], named)
     assert len(out) == 2
-    assert out[0] == ("stribeck is not named: this log cannot tell one below 2e-06 1 from none (at step 2's model, "
+    assert out[0] == ("stribeck is not named: this log cannot tell one below 2e-06 from none (at step 2's model, "
                       "the size the screen passes with 95% power and a fit of it removes the 1% of the cost the rule "
                       "asks, where the log shows it best (Stribeck velocity 0.01 rad/s); where it shows it least "
-                      "(Stribeck velocity 0.001 rad/s) only from 3e-05 1); to see a smaller one, record slower "
+                      "(Stribeck velocity 0.001 rad/s) only from 3e-05); to see a smaller one, record slower "
                       "slides")
     assert out[1] == ("hardening is not named: it passed the screen at step 2 (score 90, p = 1e-20); refitted: "
                       "held-back cost falls 1.002x, not more than 1.01x")
@@ -255,7 +255,8 @@ def test_clean_log_names_nothing():
     assert "motor turned through" in ke and "pi rad" in ke
     for row in screen.itertuples():
         assert any(s.startswith(f"{row.candidate} is not named: this log cannot tell one below "
-                                f"{row.detectable:.3g} {row.unit}") for s in d.summary), row.candidate
+                                f"{row.detectable:.3g}{'' if row.unit == '1' else ' ' + row.unit} from none")
+                   for s in d.summary), row.candidate
 
 
 def test_hidden_hardening_is_named_with_its_magnitude():

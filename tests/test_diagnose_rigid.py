@@ -217,7 +217,7 @@ def test_a_viscous_asymmetry_is_named_above_the_limit_a_log_without_one_quotes()
     screen = d.steps[-1].screen.set_index("candidate")
     limit = float(screen.loc["asymmetric_friction", "detectable"])
     assert 0 < limit < 1 and any(s.startswith(f"asymmetric_friction is not named: this log cannot tell one below "
-                                              f"{limit:.3g} 1") and "both directions" in s for s in d.summary)
+                                              f"{limit:.3g} from none") and "both directions" in s for s in d.summary)
     for factor, named in ((0.3, ["viscous_motor"]), (3.0, ["viscous_motor", "asymmetric_friction"])):
         log = _inverse_dynamics_log(b=4e-3, seed=2, viscous_asymmetry=factor * limit)
         assert [e.name for e in diagnose_rigid(log).effects] == named, factor

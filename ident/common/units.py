@@ -27,6 +27,12 @@ SCALED_SUFFIXES: dict[str, tuple[str, float]] = {
 }
 
 
+def after_number(unit: str | None) -> str:
+    """What follows a number in a sentence: a space and ``unit``, or nothing for a ratio (unit "1" or none), so that
+    a sentence reads "below 1.7e-08 from none", not "below 1.7e-08 1 from none"."""
+    return "" if unit in (None, "", "1") else f" {unit}"
+
+
 def _scaled(key: str) -> tuple[str, float] | None:
     for suffix, (si, factor) in SCALED_SUFFIXES.items():
         if key.endswith(suffix) and len(key) > len(suffix):

@@ -76,6 +76,7 @@ from scipy import stats
 
 from . import CONFIDENT_OVER_NOISE, DEFAULT_BUDGET, MIN_GAIN, above_level, levels_text
 from ..common.blas import one_blas_thread
+from ..common.units import after_number
 from ..fitting.logs import DriveLog, LogError
 from ..protocols.batch import WorkerPool
 from .models import CandidateFit, Fitted, ModelPlugin
@@ -416,7 +417,7 @@ class _Search:
         if reasons:
             return reasons, None
         mag = self.plugin.magnitude(f.model, f.name)
-        zero = [] if mag.excludes_zero else [f"its magnitude's 95 % interval includes 0 ({mag.value:.3g} {mag.unit}, "
+        zero = [] if mag.excludes_zero else [f"its magnitude's 95 % interval includes 0 ({mag.value:.3g}{after_number(mag.unit)}, "
                                               f"[{mag.ci95[0]:.3g}, {mag.ci95[1]:.3g}])"]
         if zero and not want_drop:
             return zero, None
@@ -704,11 +705,11 @@ def _unseen(steps: list[DiagnosisStep], named: list[NamedEffect]) -> list[str]:
                        f"{row.lm_statistic:.4g}, p = {row.p_value:.2g}); refitted: {why.get(row.candidate, '-')}")
         elif math.isfinite(row.detectable):
             at = (f", where the log shows it best ({row.detectable_at}); where it shows it least "
-                  f"({row.detectable_worst_at}) only from {row.detectable_worst:.3g} {row.unit}"
+                  f"({row.detectable_worst_at}) only from {row.detectable_worst:.3g}{after_number(row.unit)}"
                   if row.detectable_at else "")
             record = f"; to see a smaller one, record {row.record}" if row.record else ""
-            out.append(f"{row.candidate} is not named: this log cannot tell one below {row.detectable:.3g} "
-                       f"{row.unit} from none (at step {k}'s model, the size the screen passes with "
+            out.append(f"{row.candidate} is not named: this log cannot tell one below {row.detectable:.3g}"
+                       f"{after_number(row.unit)} from none (at step {k}'s model, the size the screen passes with "
                        f"{DETECTION_POWER:.0%} power and a fit of it removes the {MIN_GAIN - 1:.0%} of the cost the "
                        f"rule asks{at}){record}")
     return out
@@ -752,7 +753,7 @@ def _summary(named: list[NamedEffect], unexplained: list[dict[str, Any]], over: 
     out = []
     for e in named:
         sure = "tentatively (" + e.why_tentative + ")" if e.tentative else "confidently"
-        out.append(f"{e.name} is named {sure}: {e.magnitude:.4g} {e.unit}, 95 % interval "
+        out.append(f"{e.name} is named {sure}: {e.magnitude:.4g}{after_number(e.unit)}, 95 % interval "
                    f"[{e.ci95[0]:.4g}, {e.ci95[1]:.4g}]" + (f" ({e.size_note()})" if e.size_check else ""))
     if not named:
         out.append("no library effect improves the held-back prediction significantly")

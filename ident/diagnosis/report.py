@@ -12,6 +12,7 @@ import numpy as np
 
 from ..common.markdown import md_table
 from ..common.output import staged_folder
+from ..common.units import after_number
 from .result import Diagnosis
 
 _STEP_COLUMNS = ("added", "removed", "nrmse_load", "nrmse_motor", "relative_error_pct", "heldback_nrmse_load",
@@ -98,7 +99,7 @@ def _effects(diag: Diagnosis) -> list[str]:
     out = []
     for e in diag.effects:
         sure = f"**tentative**: {e.why_tentative}" if e.tentative else "confident"
-        out.append(f"- **{e.name}**: {e.magnitude:.5g} {e.unit} (95 % interval {e.ci95[0]:.5g} .. {e.ci95[1]:.5g}); "
+        out.append(f"- **{e.name}**: {e.magnitude:.5g}{after_number(e.unit)} (95 % interval {e.ci95[0]:.5g} .. {e.ci95[1]:.5g}); "
                    f"{sure}. Evidence: {e.evidence}." + (f" Size: {e.size_note()}." if e.size_check else ""))
     return out
 

@@ -43,6 +43,7 @@ from typing import Any, Callable
 
 from scipy import stats
 
+from ..common.units import after_number
 from .models import CandidateFit, Fitted, ModelPlugin
 from .result import NamedEffect
 
@@ -265,11 +266,11 @@ def widen(e: NamedEffect, final: Fitted, checks: Checks, doubts: list[str]) -> N
         if d > 0:
             sd = max(sd, abs(value - e.magnitude) / math.sqrt(d))
             continue
-        doubts.append(f"held {abs(factor - 1):.0%} {'smaller' if factor < 1 else 'larger'} ({value:.4g} {e.unit}) "
+        doubts.append(f"held {abs(factor - 1):.0%} {'smaller' if factor < 1 else 'larger'} ({value:.4g}{after_number(e.unit)}) "
                       f"with every other unknown refitted, the model fits the training data as well (cost change "
                       f"{d:+.3g} noise variances): this log does not pin its size to {SIZE_PROBE:.0%}")
         e.ci95 = (min(e.ci95[0], value), max(e.ci95[1], value))
     e.ci95 = (min(e.ci95[0], e.magnitude - Z95 * sd), max(e.ci95[1], e.magnitude + Z95 * sd))
     if (lo > 0 or hi < 0) and e.ci95[0] <= 0 <= e.ci95[1]:
-        doubts.append(f"the interval its size's profile gives, [{e.ci95[0]:.3g}, {e.ci95[1]:.3g}] {e.unit}, "
+        doubts.append(f"the interval its size's profile gives, [{e.ci95[0]:.3g}, {e.ci95[1]:.3g}]{after_number(e.unit)}, "
                       "includes 0")
