@@ -557,11 +557,11 @@ def _add_diagnose(sub: Any) -> None:
                         "(default: the machine's cores; 0: serially in this process, no Dask)")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the candidates on this dask.distributed cluster")
     p.add_argument("--candidate-budget", type=float, default=DEFAULT_CANDIDATE_BUDGET, metavar="LOGS",
-                   help="work allowed to each candidate's fit, in simulations of the training part at the cost of "
-                        "its first (counted in the FMU's model evaluations, so the answer does not depend on the "
-                        "machine's speed); a candidate that needs more is reported "
-                        "as not ruled out and no effect is then named more than tentatively (default "
-                        f"{DEFAULT_CANDIDATE_BUDGET:g}; 0: unlimited)")
+                   help="simulations of the training part allowed to each candidate's fit (an evaluation count, so "
+                        "the answer does not depend on the machine's speed; a size probe's simulation of a model "
+                        "costlier than its search's start counts as often as the FMU's model evaluations say); a "
+                        "candidate that needs more is reported as not ruled out and no effect is then named more than "
+                        f"tentatively (default {DEFAULT_CANDIDATE_BUDGET:g}; 0: unlimited)")
     p.set_defaults(func=cmd_diagnose)
 
 

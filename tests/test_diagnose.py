@@ -930,38 +930,47 @@ def test_a_final_model_that_does_not_hold_along_the_log_names_nothing_confidentl
     assert own.to_dict()["constancy"]["df"] == 5
 
 
-def test_a_budget_counts_the_fmu_work_not_the_simulations():
-    """One budget over two problems on the same log (as a continuation's windows share one): the first simulation
-    sets the unit and costs its samples; a model that is costlier to simulate (a Dahl hysteresis held at a large size
-    and a stiff element: small substeps) pays what the FMU counted relative to it, so a fit that walks to such sizes
-    runs out after fewer simulations; a simulation the budget cannot pay for at the unit is refused before it runs."""
+def test_a_budget_with_a_reference_cost_counts_a_costlier_simulation_as_often_as_its_work():
+    """A size probe's budget counts from the cost of the search's origin (``EvaluationBudget.unit``): a model that
+    is costlier to simulate (a Dahl hysteresis held at a large size with a stiff element: small substeps) pays what
+    the FMU counted relative to it, so a walk to such sizes runs out after fewer simulations; a cheaper one still
+    counts once (the bound is never looser than a count). Without a reference cost (a refit) every simulation counts
+    once, whatever its model costs. A simulation the budget cannot pay for is refused before it runs."""
     from ident.diagnosis.models.problem import ModelProblem
     from ident.fitting.identify import BudgetExceeded, EvaluationBudget, identify
 
     log, _ = load(CLEAN, **SHORT)
     fit = identify(log)
     stop = log.n // 2
-    meter = EvaluationBudget(6.0 * stop)
-    cheap = ModelProblem(log, fit.params, (), None, stop, fit.sigma_load_rad, fixed={"b_l": 1e-9}, budget=meter)
     big = {"hysteresis_torque": 100 * fit.params.f_l, "hysteresis_stiffness": 1e3 * fit.params.K_s}
-    costly = ModelProblem(log, fit.params, (), None, stop, fit.sigma_load_rad, budget=meter, fixed=big)
+
+    def problem(fixed: dict, meter: EvaluationBudget | None = None) -> ModelProblem:
+        return ModelProblem(log, fit.params, (), None, stop, fit.sigma_load_rad, fixed=fixed, budget=meter)
+
+    cheap, costly = problem({"b_l": 1e-9}), problem(big)
     try:
         cheap.residuals(fit.theta)
-        assert meter.used == stop
-        unit = cheap.plant.model_evaluations() / stop
         costly.residuals(fit.theta)
-        ratio = costly.plant.model_evaluations() / (unit * stop)
-        assert ratio > 3.0
-        assert meter.used == pytest.approx(stop * (1.0 + ratio))
-        while meter.used + stop <= meter.limit:
-            cheap.residuals(fit.theta + 1e-9 * (meter.used / stop))   # a new point: simulated and charged again
-        before = meter.used
-        with pytest.raises(BudgetExceeded):
-            cheap.residuals(fit.theta + 1e-3)
-        assert meter.used == before and cheap.exhausted
+        unit = cheap.plant.model_evaluations() / stop
+        ratio = costly.plant.model_evaluations() / cheap.plant.model_evaluations()
     finally:
         cheap.close()
         costly.close()
+    assert ratio > 3.0
+    for reference, charged in ((unit, ratio * stop), (None, stop), (unit * 10 * ratio, stop)):
+        meter = EvaluationBudget(6.0 * stop, reference)
+        p = problem(big, meter)
+        try:
+            p.residuals(fit.theta)
+            assert meter.used == pytest.approx(charged)
+            while meter.used + stop <= meter.limit:
+                p.residuals(fit.theta + 1e-9 * (meter.used / stop))   # a new point: simulated and charged again
+            before = meter.used
+            with pytest.raises(BudgetExceeded):
+                p.residuals(fit.theta + 1e-3)
+            assert meter.used == before and p.exhausted
+        finally:
+            p.close()
 
 
 def test_a_candidate_out_of_budget_blocks_a_confident_name():

@@ -4,10 +4,9 @@ candidates' screen (``screening``), result types (``result``) and the report (``
 Kept import-light: the command line reads the defaults below without loading CasADi."""
 
 #: evaluation budget of one candidate's fit: simulations of the training part (whole logs; shorter windows count
-#: their share), each counted at its cost in the FMU's model evaluations relative to the fit's first simulation
-#: (``ident.fitting.identify.EvaluationBudget``). A refit from the screen's step converges in 40-300 (measured:
-#: hardening 43-68, Stribeck 150-290 on 7 s training parts at 5 kHz); the budget is a count, so the answer is the
-#: same on any machine.
+#: their share; a size probe's simulation of a costlier model counts more, ``identify.EvaluationBudget``). A refit
+#: from the screen's step converges in 40-300 (measured: hardening 43-68, Stribeck 150-290 on 7 s training parts at
+#: 5 kHz); the budget is a count, so the answer is the same on any machine.
 DEFAULT_BUDGET = 300.0
 
 #: practical significance: a named effect must remove more than 1 % of what the model leaves in the held-back data

@@ -11,9 +11,8 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    with their statistic and not refitted.
 4. **Refit** every passing candidate (a candidate the screen cannot rule out is only ruled out by its refit; the
    screen's first-order ranking can misorder candidates that explain the same residual), on the workers
-   (``plugin.refit``), each within its evaluation budget (the FMU's model evaluations, never seconds), then its
-   size searched on the same worker (``sizes.search_candidate``: a stalled refit would lose to a rival it should
-   beat). A candidate
+   (``plugin.refit``), each within its evaluation budget (simulations, never seconds), then its size searched on
+   the same worker (``sizes.search_candidate``: a stalled refit would lose to a rival it should beat). A candidate
    that runs out of budget is judged at the best point it reached: that point is a model like any other, and if it
    passes the rule the effect is there (measured on a two-effect log of the independent generator, viscous load and
    an exponential Stribeck: the Stribeck refit ran out at step 2 with a 2.28x held-back gain and was never named;
@@ -417,8 +416,8 @@ class _Search:
         if reasons:
             return reasons, None
         mag = self.plugin.magnitude(f.model, f.name)
-        zero = [] if mag.excludes_zero else [f"its magnitude's 95 % interval includes 0 ({mag.value:.3g}{after_number(mag.unit)}, "
-                                              f"[{mag.ci95[0]:.3g}, {mag.ci95[1]:.3g}])"]
+        zero = [] if mag.excludes_zero else [f"its magnitude's 95 % interval includes 0 ({mag.value:.3g}"
+                                              f"{after_number(mag.unit)}, [{mag.ci95[0]:.3g}, {mag.ci95[1]:.3g}])"]
         if zero and not want_drop:
             return zero, None
         drop = self.plugin.without(f.model, f.name, self.budget)
@@ -448,7 +447,7 @@ class _Search:
         self.doubts[name] = _doubts(self.plugin, current, winner, fits, runner, v.gain)
         self.doubts[name] += _twin_doubt(self.plugin, winner, fits, self.budget)
         if winner.exhausted:
-            self.doubts[name].append(f"{UNFINISHED} ({winner.evaluations:.0f} training logs' work): it was "
+            self.doubts[name].append(f"{UNFINISHED} ({winner.evaluations:.0f} training logs simulated): it was "
                                      "chosen at the best point that fit reached, not at its optimum")
         self._record(model, name, v.gain, {"dm_p": v.dm_p, "delta_bic": v.delta_bic, "runner_up": runner,
                                            "margin": margin})
@@ -814,10 +813,9 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
     """Run the discrepancy loop on ``log`` (see the module docstring); ``out_dir``: write the report, plots and the
     fitted FMU there (through a staging folder: all or nothing). ``workers``: candidate refits in parallel on this
     many local Dask worker processes (None: the machine's cores; 0: serially in this process); ``scheduler``: an
-    existing Dask cluster instead. ``budget``: the work allowed to each candidate's fit, in simulations of the
-    training part at its start's cost (``EvaluationBudget``; None: unlimited); the answer never depends on the
-    machine's speed. ``reference``: published figures of the
-    data set to print beside a rigid diagnosis (``ident.studies.emps.emps_reference``)."""
+    existing Dask cluster instead. ``budget``: simulations allowed to each candidate's fit, in whole training
+    logs (``EvaluationBudget``; None: unlimited); the answer never depends on the machine's speed. ``reference``:
+    published figures of the data set to print beside a rigid diagnosis (``ident.studies.emps.emps_reference``)."""
     if max_effects < 0:
         raise ValueError(f"max_effects = {max_effects}: must be >= 0")
     if budget is not None and not budget > 0:

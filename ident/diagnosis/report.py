@@ -69,9 +69,10 @@ def markdown(diag: Diagnosis, files: dict[str, str], sections: list[str]) -> str
         [f"- {u['regime']}: {u['detail']}" for u in diag.unexplained] if diag.unexplained else \
         ["Nothing significant is left unexplained."]
     lines += ["", "## How the grids were derived", ""] + [f"- {d}" for d in diag.derivations]
-    lines += ["", f"Budget: {diag.budget if diag.budget is not None else 'unlimited'} training logs' work per "
-              "candidate fit (counted in the FMU's model evaluations, a training log's simulation at the fit's start "
-              "as the unit: the answer does not depend on the machine's speed).", ""]
+    lines += ["", f"Budget: {diag.budget if diag.budget is not None else 'unlimited'} training logs simulated per "
+              "candidate fit (a count; a size probe's simulation of a model costlier than the one its search started "
+              "from counts as many as the FMU's model evaluations say: the answer does not depend on the machine's "
+              "speed).", ""]
     lines += ["## Final model parameters", ""] + [f"- {k} = {_num(v)}" for k, v in diag.steps[-1].params.items()]
     lines += ["", "## Fitted model as an FMU", "",
               (f"`{Path(diag.fmu).name}`: " if diag.fmu else "No FMU: ") + diag.fmu_note, ""]

@@ -107,17 +107,18 @@ class BudgetExceeded(RuntimeError):
 
 
 class EvaluationBudget:
-    """The work a fit may do, so that a budget means the same on any machine and bounds the work itself, not only the
-    number of simulations.
+    """Simulations a fit may run, counted in samples simulated (a simulation of ``stop`` samples costs ``stop``), so
+    that a budget means the same on any machine and for any window length; one budget can span the many problems of
+    a continuation (``fit_pipeline``). ``limit`` None: unlimited (the count is still kept).
 
-    The work of a simulation is the FMU's own count of model evaluations (``Plant.model_evaluations``); the budget
-    states it in samples simulated at a reference cost of ``unit`` evaluations per sample (None: the first
-    simulation charged sets it). A simulation of ``stop`` samples at the reference cost costs ``stop``; one whose
-    model costs k times more per sample costs k times more. Why: a simulation's cost varies by orders of magnitude
-    with the model (measured on a two-effect log: a hysteresis size search's probes at 446x the fitted size cost 250
-    times more per sample than the fit, and one refit took 11 minutes within a count of simulations). One budget can
-    span the many problems of a continuation (``fit_pipeline``): windows of any length, one reference cost.
-    ``limit`` None: unlimited (the count is still kept)."""
+    ``unit``: the cost of a reference model in the FMU's model evaluations per sample (``Plant.model_evaluations``);
+    given, a simulation whose model costs k > 1 times more per sample counts k times (never less than one). Why: a
+    simulation's cost varies by orders of magnitude with the model, and a count of simulations alone does not bound
+    the work (measured on a two-effect log: a hysteresis size search's probes at 446x the fitted size cost 250 times
+    more per sample than the fitted model, and the search took 11 minutes within its count). A size search counts
+    from the model it started at (``ident.diagnosis.sizes``); a refit counts simulations, whose cost varies with the
+    model it is fitting (a Stribeck refit that moves to a slower Stribeck velocity costs more per simulation, and
+    counted in work it would run out before it converges where a count lets it)."""
 
     def __init__(self, limit: float | None = None, unit: float | None = None):
         self.limit = limit
@@ -125,21 +126,18 @@ class EvaluationBudget:
         self.used = 0.0
 
     def check(self, samples: int) -> None:
-        """Raise ``BudgetExceeded`` if the budget cannot pay for a simulation of ``samples`` samples at the
-        reference cost (asked before it runs; what it really cost is charged after, ``charge``)."""
+        """Raise ``BudgetExceeded`` if the budget cannot pay for one more simulation of ``samples`` samples (asked
+        before it runs; what it cost is charged after, ``charge``)."""
         if self.limit is not None and self.used + samples > self.limit:
             raise BudgetExceeded(f"the fit used up its budget of {self.limit / max(samples, 1):.4g} simulations")
 
     def charge(self, samples: int, evaluations: float | None = None) -> None:
-        """Count a simulation of ``samples`` samples that did ``evaluations`` model evaluations (None: a simulation
-        that failed, or one whose cost is not known, counts at the reference cost)."""
-        if evaluations is None:
-            self.used += samples
-            return
-        evaluations = max(float(evaluations), 1.0)   # a log the model spends stuck throughout costs next to nothing
-        if self.unit is None:
-            self.unit = evaluations / max(samples, 1)
-        self.used += evaluations / self.unit
+        """Count a simulation of ``samples`` samples that did ``evaluations`` model evaluations (None: not known,
+        e.g. a simulation the FMU refused; it counts once)."""
+        cost = float(samples)
+        if self.unit is not None and evaluations is not None:
+            cost = max(cost, float(evaluations) / self.unit)
+        self.used += cost
 
 
 # ------------------------------------------------------------------------------------------- problem -----------
@@ -217,8 +215,8 @@ class OutputError:
         return self._cache[key]
 
     def _simulate_charged(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """``simulate``, paid from the budget (when there is one): refused when it cannot pay for a simulation at its
-        reference cost, then charged what the FMU counted (a simulation that fails: the reference cost)."""
+        """``simulate``, paid from the budget (when there is one): refused when it cannot pay for one more, then
+        charged with what the FMU counted (``EvaluationBudget.charge``; a simulation that fails counts once)."""
         if self.budget is None:
             return self.simulate(theta)
         try:

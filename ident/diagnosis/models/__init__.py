@@ -55,8 +55,7 @@ class CandidateFit:
     ``exhausted``: the fit used up its evaluation budget before it converged; ``model`` is then the best point it
     simulated (None if none), judged like any other, and the candidate is not ruled out unless it is named;
     ``veto``: a reason of the model's own not to name it even if it scores (e.g. a parameter at its bound);
-    ``evaluations``: the work used, in training logs simulated at the fit's reference cost; ``start``: where the
-    fit started;
+    ``evaluations``: the simulations used, in whole training logs; ``start``: where the fit started;
     ``size_probes``: the refits of the size search that followed (``ident.diagnosis.sizes.search_candidate``),
     ``size_moved``: whether it moved the size, ``size_unsettled``: whether it used up its rounds still moving (the
     refit may fit better still)."""
@@ -113,8 +112,8 @@ class ModelPlugin(ABC):
 
     @abstractmethod
     def refit(self, model: Fitted, test: ScoreTest, budget: float | None) -> CandidateFit:
-        """``model`` with the candidate of ``test`` added, fitted from the screen's step; ``budget``: the work
-        allowed, in training logs simulated at the fit's start's cost (``EvaluationBudget``; None: unlimited)."""
+        """``model`` with the candidate of ``test`` added, fitted from the screen's step; ``budget``: simulations
+        allowed, in whole training logs (``EvaluationBudget``; None: unlimited)."""
 
     @abstractmethod
     def without(self, model: Fitted, name: str, budget: float | None) -> Fitted:

@@ -17,7 +17,7 @@
   part; when the current model leans on a parameter bound (it cannot fit the log inside the physical range, so a
   refit from it starts in the wrong basin) the candidate's model is identified from scratch
   (``identify.fit_pipeline``, the screen's step among its first window's starting points). Every fit runs within
-  an evaluation budget (the FMU's model evaluations, in training logs simulated at the fit's start's cost).
+  an evaluation budget (whole training logs simulated; a size probe's costlier simulations count more).
 - **Converge**: an accepted model still above the noise is identified from scratch with its effects too (the base
   model's parameters may have bent to mimic the missing effect into a far basin); the better one is kept.
 """
@@ -45,8 +45,7 @@ from ...fitting.logs import DriveLog, LogError
 from ...fitting.noise import at_noise_level, residual_noise_std
 from ...fitting.result import larger_variances
 from ...model.effects import EFFECTS
-from ...model.params import DriveParams, ParameterError
-from ...model.plant import PlantError
+from ...model.params import DriveParams
 from .. import CONFIDENT_ALPHA, CONFIDENT_OVER_NOISE, MIN_GAIN, above_level
 from ..result import DiagnosisStep
 from ..screening import ScoreTest, best_of_grid, detection_limit, partial_out, quote_limits, score_test
@@ -340,7 +339,6 @@ class TwoInertiaPlugin(ModelPlugin):
         up there raises."""
         st = model.state
         x = self._start(model, test, sens)
-        meter.unit = meter.unit or self._work(effects, np.concatenate([st.theta, x]), st, sens)
         coords = coordinates(test.candidate, st.scales, sens.get(test.candidate))
         rows = [np.concatenate([st.theta[4:], x])]
         for point in grid(test.candidate, st.scales):  # the grid's other points as further starts
@@ -351,20 +349,6 @@ class TwoInertiaPlugin(ModelPlugin):
                                                np.unique(np.array(rows), axis=0))
         problem.close()
         return theta, False
-
-    def _work(self, effects: tuple[str, ...], theta: np.ndarray, st: TwoInertiaState, sens: Sensitivity
-              ) -> float | None:
-        """What simulating the training part at ``theta`` with ``effects`` on costs per sample: the unit of a budget
-        spent from there by a continuation (``fit_pipeline``), whose first window alone would set it from a fraction
-        of the log. None where the FMU refuses that point (the first window's simulation then sets it)."""
-        problem = ModelProblem(self.full, st.base, _fmu_effects(effects), st.scales, self.stop, self.sigma, sens=sens)
-        try:
-            problem.residuals(theta)
-            return max(problem.plant.model_evaluations(), 1.0) / self.stop
-        except (PlantError, ParameterError):
-            return None
-        finally:
-            problem.close()
 
     def _flexibility(self) -> CandidateFit:
         try:
@@ -391,7 +375,7 @@ class TwoInertiaPlugin(ModelPlugin):
         """``model``'s drive with ``effects`` on, refitted on the training part by IPOPT from ``head`` within
         ``budget`` (as ``refit``; a fit that runs out keeps the best point it simulated), simulated over the whole
         log. ``pin``: unknowns held where ``head`` has them (inside their bounds); ``clip``: the start moved inside
-        the bounds; ``unit``: the budget's reference cost (``EvaluationBudget``; None: its first simulation's)."""
+        the bounds; ``unit``: the budget's reference cost (``EvaluationBudget``; None: simulations are counted)."""
         st = model.state
         problem = st.problem(self.full, effects, self.stop, self.sigma, central=False,
                              budget=EvaluationBudget(None if budget is None else budget * self.stop, unit))
@@ -418,7 +402,7 @@ class TwoInertiaPlugin(ModelPlugin):
         if not at_bound(model.state.theta):
             return self._continued(model, budget) if unfinished else (self.resimulated(model), "")
         st = model.state
-        meter = EvaluationBudget(None if budget is None else budget * self.stop, st.work)
+        meter = EvaluationBudget(None if budget is None else budget * self.stop)
         try:
             problem, theta, _, _, _ = fit_pipeline(truncate_log(self.full, self.stop), st.base,
                                                    ModelProblem.maker(_fmu_effects(model.effects), st.scales,
