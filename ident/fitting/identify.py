@@ -114,8 +114,8 @@ class EvaluationBudget:
     ``unit``: the cost of a reference model in the FMU's model evaluations per sample (``Plant.model_evaluations``);
     given, a simulation whose model costs k > 1 times more per sample counts k times (never less than one). Why: a
     simulation's cost varies by orders of magnitude with the model, and a count of simulations alone does not bound
-    the work (measured on a two-effect log: a hysteresis size search's probes at 446x the fitted size cost 250 times
-    more per sample than the fitted model, and the search took 11 minutes within its count). A size search counts
+    the work (measured on a two-effect log: a hysteresis size search's probes at 446x the fitted size cost 120 times
+    more per sample than the fitted model, and that refit took 11 minutes within its count). A size search counts
     from the model it started at (``ident.diagnosis.sizes``); a refit counts simulations, whose cost varies with the
     model it is fitting (a Stribeck refit that moves to a slower Stribeck velocity costs more per simulation, and
     counted in work it would run out before it converges where a count lets it)."""
