@@ -94,10 +94,10 @@ def search_size(run: Mapper, plugin: ModelPlugin, model: Fitted, name: str, budg
     ``PROBE_BUDGETS`` of it, counted at the cost of simulating ``model`` (a probe far out along a size that makes
     the model costlier to simulate pays for it: a search that walks to absurd sizes stays bounded in work). A move
     that has lowered the training cost less than ``min_gain`` times since the last check ends the search there,
-    unchecked. ``inflation(model)``: the size's ``ModelPlugin.size_inflation`` there
-    (None: 1). A check whose two probes both fit worse, but unequally, is followed by one probe at the vertex of
-    the parabola through them (``vertex``); a move there that lowered the training cost by less than ``separable``
-    noise variances is a refinement, not a doubt."""
+    unchecked. ``inflation(model)``: the size's ``ModelPlugin.size_inflation`` there (None: 1). A check whose two
+    probes both fit worse, but unequally, is followed by one probe at the vertex of the parabola through them
+    (``vertex``); a move there that lowered the training cost by less than ``separable`` noise variances is a
+    refinement, not a doubt."""
     cur, g, checked = model, None, model.train_cost
     budget = None if budget is None else PROBE_BUDGETS * budget
     shift, stalled = 1.0, False   # the product of the vertex steps taken; whether a move left the check's bracket
@@ -266,11 +266,12 @@ def widen(e: NamedEffect, final: Fitted, checks: Checks, doubts: list[str]) -> N
         if d > 0:
             sd = max(sd, abs(value - e.magnitude) / math.sqrt(d))
             continue
-        doubts.append(f"held {abs(factor - 1):.0%} {'smaller' if factor < 1 else 'larger'} ({value:.4g}{after_number(e.unit)}) "
-                      f"with every other unknown refitted, the model fits the training data as well (cost change "
-                      f"{d:+.3g} noise variances): this log does not pin its size to {SIZE_PROBE:.0%}")
+        doubts.append(f"held {abs(factor - 1):.0%} {'smaller' if factor < 1 else 'larger'} "
+                      f"({value:.4g}{after_number(e.unit)}) with every other unknown refitted, the model fits the "
+                      f"training data as well (cost change {d:+.3g} noise variances): this log does not pin its size "
+                      f"to {SIZE_PROBE:.0%}")
         e.ci95 = (min(e.ci95[0], value), max(e.ci95[1], value))
     e.ci95 = (min(e.ci95[0], e.magnitude - Z95 * sd), max(e.ci95[1], e.magnitude + Z95 * sd))
     if (lo > 0 or hi < 0) and e.ci95[0] <= 0 <= e.ci95[1]:
-        doubts.append(f"the interval its size's profile gives, [{e.ci95[0]:.3g}, {e.ci95[1]:.3g}]{after_number(e.unit)}, "
-                      "includes 0")
+        doubts.append(f"the interval its size's profile gives, [{e.ci95[0]:.3g}, {e.ci95[1]:.3g}]"
+                      f"{after_number(e.unit)}, includes 0")
