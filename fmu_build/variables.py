@@ -117,7 +117,6 @@ BY_NAME: dict[str, Variable] = {v.name: v for v in VARIABLES}
 PARAMETERS: tuple[Variable, ...] = tuple(v for v in VARIABLES if v.causality == "parameter")
 INPUTS: tuple[Variable, ...] = tuple(v for v in VARIABLES if v.causality == "input")
 OUTPUTS: tuple[Variable, ...] = tuple(v for v in VARIABLES if v.causality == "output")
-LOCALS: tuple[Variable, ...] = tuple(v for v in VARIABLES if v.causality == "local")
 
 # Base units of every unit used in the table, for the <UnitDefinitions> of both modelDescriptions.
 UNITS: dict[str, dict[str, int]] = {

@@ -94,7 +94,7 @@ class Diagnosis:
     derivations: list[str] = field(default_factory=list)   # how the grids and scales follow from the data
     summary: list[str] = field(default_factory=list)       # the conclusions, each computed from the numbers
     fmu_note: str = ""                                      # what the exported FMU is, or why there is none
-    budget: float | None = None                             # work allowed per candidate (training logs)
+    budget: float | None = None                             # simulations allowed per candidate (training logs)
     constancy: dict[str, Any] = field(default_factory=dict)   # the final model's two-halves check (the engine's)
 
     def to_dict(self) -> dict[str, Any]:

@@ -170,7 +170,7 @@ class OutputError:
         self.verbose = False        # IPOPT's own output (``fit_ipopt``)
         self.fd_steps: np.ndarray | None = None  # wider finite-difference steps while searching (``jacobian``)
         self.interrupted = False    # a KeyboardInterrupt arrived inside a CasADi callback (``fit_ipopt``)
-        self.budget: EvaluationBudget | None = None  # work allowed (None: unlimited)
+        self.budget: EvaluationBudget | None = None  # simulations allowed (None: unlimited)
         self.exhausted = False      # a simulation was refused by the budget (``fit_ipopt`` raises BudgetExceeded)
         self._cache: dict[bytes, np.ndarray] = {}
 

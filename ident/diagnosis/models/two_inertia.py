@@ -410,7 +410,7 @@ class TwoInertiaPlugin(ModelPlugin):
             problem.close()
         except BudgetExceeded:
             return self.resimulated(model), (f"identifying {' + '.join(model.effects)} from scratch used up its "
-                                              f"budget ({meter.used / self.stop:.0f} training logs' work): the "
+                                              f"budget ({meter.used / self.stop:.0f} training logs simulated): the "
                                               "refitted model is kept")
         fresh = self.evaluate(model.effects, theta, st.base, st.scales, keep=True, sens=st.sens)
         if fresh.train_cost < model.train_cost:
