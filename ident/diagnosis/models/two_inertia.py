@@ -10,7 +10,7 @@
   motor stands still).
 - **Screen**: the score test of each candidate (``ident.diagnosis.screening``) on the load-sensor residuals of the
   training part, the Jacobian columns through the FMU: the current unknowns' by central differences, each
-  candidate's by a one-sided difference at zero through the same propagator (``problem.SAME_PROPAGATOR``), over the
+  candidate's by a one-sided difference at zero through the same propagator (``problem.same_propagator``), over the
   grid of its nonlinear coordinate (``coordinates.grid``).
 - **Refit**: from the screen's Gauss-Newton step (the current unknowns and the candidate's), or that step scaled
   back when it lands higher (down to the current model with the candidate off: ``_heads``), IPOPT on the training
@@ -62,7 +62,7 @@ from .coordinates import (
     magnitude_of,
     record_advice,
 )
-from .problem import SAME_PROPAGATOR, ModelProblem, Sensitivity, rms, simulate_full
+from .problem import ModelProblem, Sensitivity, rms, simulate_full
 
 HOLDBACK_FRACTION = 0.3
 #: IPOPT iterations of a drop / backward refit (a candidate's refit runs until its budget is spent)
@@ -208,7 +208,7 @@ class TwoInertiaPlugin(ModelPlugin):
                               note="the rigid kinematics has no parameter whose zero is the flexibility: fitted "
                                    "directly")]
         st = model.state
-        problem = st.problem(self.full, model.effects, self.stop, self.sigma, fixed=dict(SAME_PROPAGATOR))
+        problem = st.problem(self.full, model.effects, self.stop, self.sigma, general=True)
         try:
             rows = problem.load_rows()
             r = problem.residuals(st.theta)[rows]
@@ -283,7 +283,7 @@ class TwoInertiaPlugin(ModelPlugin):
         st = model.state
         coords = coordinates(name, st.scales)
         values = fmu_values(name, coords, np.array([x.get(c.name, 0.0) for c in coords]))
-        problem = st.problem(self.full, model.effects, self.stop, self.sigma, fixed={**SAME_PROPAGATOR, **values})
+        problem = st.problem(self.full, model.effects, self.stop, self.sigma, fixed=values, general=True)
         try:
             return problem.residuals(st.theta)[problem.load_rows()].copy()
         finally:
