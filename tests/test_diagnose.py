@@ -676,6 +676,65 @@ def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -
             assert out is (fits[1].model if rival else None) and search.models[-1] is current and not search.notes
 
 
+def test_a_refit_that_removes_less_than_chance_leaves_its_candidate_not_ruled_out() -> None:
+    """``_Search._step``: a candidate the screen passes (its step predicts a fall of many noise variances) whose
+    refit removes fewer noise variances of the training cost than its degrees of freedom remove by chance was not
+    tested by that refit: at a model above its noise level it is listed as not ruled out with the numbers, and its
+    table row says so; at the noise there was nothing to remove. A refit that removes more (even without passing
+    the rule) rules it out as before. Measured on a two-effect log: every refit
+    of a step ended within 0.02 noise variances of its start and read as tested and rejected."""
+    from ident.diagnosis import CONFIDENT_OVER_NOISE
+    from ident.diagnosis.engine import _Say, _Search
+    from ident.diagnosis.models import CandidateFit
+    from ident.diagnosis.screening import ScoreTest
+
+    noise = np.random.default_rng(5).normal(size=4000) ** 2
+
+    def model(effects: tuple[str, ...], train: float, scale: float = 1.0) -> Fitted:
+        return Fitted(effects, train, 4000.0 * scale, noise * scale, 4000, 4 + len(effects))
+
+    class Pool:
+        @staticmethod
+        def share(plugin: object) -> object:
+            return plugin
+
+        @staticmethod
+        def map(fn: object, tasks: list[tuple], desc: str = "", cost: object = None,
+                progress: bool = False) -> list[CandidateFit]:
+            return [CandidateFit("viscous_motor", model(("viscous_motor",), 4000.0 - 0.02)),
+                    CandidateFit("hardening", model(("hardening",), 4000.0 - 5.0, 1.0 / 1.001))]
+
+    class Plugin(_Recorded):
+        @staticmethod
+        def screen(current: Fitted, names: tuple[str, ...]) -> list[ScoreTest]:
+            return [ScoreTest("viscous_motor", 1141.0, 30.0, 1, 0.0), ScoreTest("hardening", 40.0, 9.0, 1, 1e-6)]
+
+        def __init__(self, over: float) -> None:
+            self.over = over
+
+        def over_noise(self, m: Fitted) -> tuple[float, float]:
+            return self.over, self.over
+
+        @staticmethod
+        def confident_levels() -> tuple[float, float]:
+            return CONFIDENT_OVER_NOISE, CONFIDENT_OVER_NOISE
+
+    for over in (1.96, 0.998):   # above its noise level, and at the noise (nothing left for a refit to remove)
+        search = _Search(Plugin(over), Pool(), None, 3, _Say(False))
+        current = model((), 4000.0)
+        search._record(current, None, None, {})
+        assert search._step(current, ("viscous_motor", "hardening")) is None
+        table = search.steps[-1].candidates.set_index("candidate")
+        assert "did not test it" not in table.loc["hardening", "why"]
+        if over < 1.0:
+            assert not search.not_ruled_out and "did not test it" not in table.loc["viscous_motor", "why"]
+            continue
+        [c] = search.not_ruled_out
+        assert c["candidate"] == "viscous_motor" and c["step"] == 0
+        assert "removed 0.02 noise variances" in c["reason"] and "predicted 1141" in c["reason"]
+        assert "did not test it" in table.loc["viscous_motor", "why"]
+
+
 def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() -> None:
     """``_Search._exchange``: every named effect but the last is refitted out of the final model and the candidates
     that pass the screen there are refitted in its place; the best takes its place when it passes the acceptance
