@@ -22,12 +22,12 @@ Method (the exact model inside the fit, never a smoothed copy):
    a 1.3x longer window is, or the current window's fit leaves misfit above the noise (its region then says nothing
    about the basin: ``_next_window``), a 1.3x longer window and the old grid (``_scale_scan``) re-centre the fit (and
    where that fit leaves the noise the previous window's had reached, the scale's local minima in 1 % steps and the
-   first window's full-span grid too: ``_rescale``). The first window's best distinct optima are carried along as competing tracks until the data reject
-   them (likelihood ratio at 99.9 %); several survivors at the end mean the log does not decide between them
-   (multi-modal). The whole-log optimum's initial deflection is then compared with every basin of it
-   (``_other_basin``), and refitted from a lower one. Where that optimum misses the noise or stopped at its iteration
-   limit, steps 1-3 run again along the start's second path (``START_PATHS``: another first window and candidate
-   rule) if it would choose differently (``_paths_differ``), and the lower whole-log cost wins.
+   first window's full-span grid too: ``_rescale``). The first window's best distinct optima are carried along as
+   competing tracks until the data reject them (likelihood ratio at 99.9 %); several survivors at the end mean the log
+   does not decide between them (multi-modal). The whole-log optimum's initial deflection is then compared with every
+   basin of it (``_other_basin``), and refitted from a lower one. Where that optimum misses the noise or stopped at its
+   iteration limit, steps 1-3 run again along the start's second path (``START_PATHS``: another first window and
+   candidate rule) if it would choose differently (``_paths_differ``), and the lower whole-log cost wins.
 4. **Noise, uncertainty, identifiability**: one load-noise estimate (``noise.residual_noise_std``: the white part of
    the whole-log residual) weighs the rows, scales the Cramer-Rao bound, is reported as ``sigma_load_rad`` and is
    the yardstick of the model-mismatch warning. Two covariances of the log-parameters: *Cramer-Rao* ((J^T J)^-1

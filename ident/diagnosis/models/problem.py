@@ -37,6 +37,8 @@ def same_propagator(p: DriveParams) -> DriveParams:
     if p.b_m != 0.0 or p.b_l != 0.0 or p.viscous_asymmetry != 0.0:
         return p
     return p.with_values(**SAME_PROPAGATOR)
+
+
 #: a fit stalls when its best cost has not fallen by more than this (relative) over ``stall_after`` simulations: the
 #: cost of an exact stick-slip model has kinks where a marginal event flips, and IPOPT's line search can spend a
 #: dozen simulations per iteration on one (measured: 13 per iteration, 100 of a refit's 300)
