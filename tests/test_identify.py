@@ -173,7 +173,8 @@ def test_a_fit_leaning_on_a_bound_is_flagged() -> None:
     inside it; the result must say so rather than present an estimate. Whether the optimizer's path ends on the edge
     of the box or a few % inside it (with the residual far above the noise) depends on its steps, so the flagging of
     a value at a bound is also checked directly: the result at the whole-log optimum built with J_l* on its bound.
-    (A log with a hidden effect may or may not end on a bound either: it must then be untrusted anyway.)"""
+    (A log with a hidden effect may or may not end on a bound either: it must then be untrusted anyway, the slow
+    test below.)"""
     from ident.fitting.identify import OutputError, Track, base_params, build_result, at_bound
     from ident.fitting.synthetic import hidden_effect_log
 
@@ -196,10 +197,20 @@ def test_a_fit_leaning_on_a_bound_is_flagged() -> None:
             assert not e.identifiable and e.to_dict()["value"] is None and e.to_dict()["ci95"] is None
         assert not result.identifiable
     assert at_bound(leaned.theta) == ["J_l_star"]
-    stribeck = identify(hidden_effect_log("stribeck", 2.8))  # breakaway 1.5x the sliding level: no fit explains it
-    assert not stribeck.identifiable and not any(e.identifiable for e in stribeck.estimates.values())
     clean = identify(hidden_effect_log("clean", 2.0))
     assert at_bound(clean.theta) == [] and clean.identifiable
+
+
+@pytest.mark.slow
+def test_a_fit_far_from_a_hidden_stribeck_trusts_no_value() -> None:
+    """A hidden Stribeck whose breakaway is 1.5x the sliding level: no fit explains the log (860-1100x the noise),
+    whether or not it ends on a bound, and no estimate is trusted. Slow (30 s: the fit's restarts and second start
+    path); the default run holds the same rule on a hidden hysteresis
+    (``test_a_hidden_effect_fires_the_mismatch_warning_and_no_value_is_trusted``)."""
+    from ident.fitting.synthetic import hidden_effect_log
+
+    stribeck = identify(hidden_effect_log("stribeck", 2.8))
+    assert not stribeck.identifiable and not any(e.identifiable for e in stribeck.estimates.values())
 
 
 def test_a_hidden_effect_fires_the_mismatch_warning_and_no_value_is_trusted() -> None:
