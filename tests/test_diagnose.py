@@ -570,18 +570,6 @@ def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None
     from ident.diagnosis.engine import _Say, _Search
     from ident.diagnosis.result import NamedEffect
 
-    class Pool:
-        def __init__(self) -> None:
-            self.probes = 0
-
-        def share(self, plugin: object) -> object:
-            return plugin
-
-        def map(self, fn: object, tasks: list[tuple], desc: str = "", cost: object = None,
-                progress: bool = False) -> list[None]:
-            self.probes += len(tasks)
-            return [None] * len(tasks)   # probes that failed: the search ends at its first check
-
     class Plugin:
         @staticmethod
         def over_noise(model: Fitted) -> tuple[float, float]:
@@ -598,14 +586,31 @@ def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None
     losses = np.ones(100)
     for over, probed in (((1.0, 0.99), True), ((1.0, CONFIDENT_OVER_NOISE * 1.01), True),
                          ((CONFIDENT_OVER_NOISE * 1.01, 1.0), False)):
-        pool = Pool()
+        pool = _Pool()   # probes that failed: the search ends at its first check
         search = _Search(Plugin(), pool, None, 3, _Say(False))
         search.named = [NamedEffect(n, math.nan, (math.nan, math.nan), "", "", None, None) for n in ("stribeck", "hysteresis")]
         model = Fitted(("stribeck", "hysteresis"), 100.0, 100.0, losses, 100, 8, {"over": over})
         assert search._settle(model) is model
-        assert (pool.probes == 4) == probed and (pool.probes == 0) == (not probed), (over, pool.probes)
+        probes = len(pool.tasks)
+        assert (probes == 4) == probed and (probes == 0) == (not probed), (over, probes)
         assert any("size search: not run" in n for n in search.notes) == (not probed)
         assert set(search.size_checks) == ({"stribeck", "hysteresis"} if probed else set())
+
+
+class _Pool:
+    """A stand-in worker pool for the loop's tests: the plug-in as it is, and ``results`` for every batch (None:
+    a None per task, a task that failed); every task it was given is kept in ``tasks``."""
+
+    def __init__(self, results: list | None = None) -> None:
+        self.results, self.tasks = results, []
+
+    @staticmethod
+    def share(plugin: object) -> object:
+        return plugin
+
+    def map(self, fn: object, tasks: list[tuple], desc: str = "", cost: object = None, progress: bool = False) -> list:
+        self.tasks += tasks
+        return [None] * len(tasks) if self.results is None else list(self.results)
 
 
 class _Recorded:
@@ -645,17 +650,6 @@ def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -
     def model(effects: tuple[str, ...], scale: float) -> Fitted:
         return Fitted(effects, 4000.0 * scale, 4000.0 * scale, noise * scale, 4000, 4 + len(effects))
 
-    class Pool:
-        def __init__(self, fits: list[CandidateFit]) -> None:
-            self.fits = fits
-
-        def share(self, plugin: object) -> object:
-            return plugin
-
-        def map(self, fn: object, tasks: list[tuple], desc: str = "", cost: object = None,
-                progress: bool = False) -> list[CandidateFit]:
-            return self.fits
-
     class Plugin(_Recorded):
         def __init__(self, reduced: Fitted) -> None:
             self.reduced, self.dropped = reduced, []
@@ -678,7 +672,7 @@ def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -
         fits = [CandidateFit("hysteresis", model(("viscous_load", "hysteresis"), 1.0 / 1000.0))]
         fits += [CandidateFit("viscous_motor", model(("viscous_load", "viscous_motor"), 1.0 / 50.0))] if rival else []
         plugin = Plugin(model(("viscous_load",), reduced_scale))
-        search = _Search(plugin, Pool(fits), None, 3, _Say(False))
+        search = _Search(plugin, _Pool(fits), None, 3, _Say(False))
         search._record(current, None, None, {})
         search._accept = lambda cur, winner, fits, k: winner.model   # noqa: B023 - the winner, as accepted
         out = search._step(current, ("hysteresis", "viscous_motor"))
@@ -711,16 +705,8 @@ def test_a_refit_that_removes_less_than_chance_leaves_its_candidate_not_ruled_ou
     def model(effects: tuple[str, ...], train: float, scale: float = 1.0) -> Fitted:
         return Fitted(effects, train, 4000.0 * scale, noise * scale, 4000, 4 + len(effects))
 
-    class Pool:
-        @staticmethod
-        def share(plugin: object) -> object:
-            return plugin
-
-        @staticmethod
-        def map(fn: object, tasks: list[tuple], desc: str = "", cost: object = None,
-                progress: bool = False) -> list[CandidateFit]:
-            return [CandidateFit("viscous_motor", model(("viscous_motor",), 4000.0 - 0.02)),
-                    CandidateFit("hardening", model(("hardening",), 4000.0 - 5.0, 1.0 / 1.001))]
+    fits = [CandidateFit("viscous_motor", model(("viscous_motor",), 4000.0 - 0.02)),
+            CandidateFit("hardening", model(("hardening",), 4000.0 - 5.0, 1.0 / 1.001))]
 
     class Plugin(_Recorded):
         @staticmethod
@@ -738,7 +724,7 @@ def test_a_refit_that_removes_less_than_chance_leaves_its_candidate_not_ruled_ou
             return CONFIDENT_OVER_NOISE, CONFIDENT_OVER_NOISE
 
     for over in (1.96, 0.998):   # above its noise level, and at the noise (nothing left for a refit to remove)
-        search = _Search(Plugin(over), Pool(), None, 3, _Say(False))
+        search = _Search(Plugin(over), _Pool(fits), None, 3, _Say(False))
         current = model((), 4000.0)
         search._record(current, None, None, {})
         assert search._step(current, ("viscous_motor", "hardening")) is None
@@ -998,18 +984,6 @@ def test_the_constancy_check_refits_each_half_and_a_moving_model_names_nothing_c
     losses = np.ones(100)
     final = Fitted(("hysteresis",), 100.0, 100.0, losses, 100, 6)
 
-    class Pool:
-        def __init__(self, halves: list) -> None:
-            self.halves, self.tasks = halves, []
-
-        def share(self, plugin: object) -> object:
-            return plugin
-
-        def map(self, fn: object, tasks: list[tuple], desc: str = "", cost: object = None,
-                progress: bool = False) -> list:
-            self.tasks += [t[2] for t in tasks]
-            return self.halves
-
     class Plugin:
         def __init__(self, over: float, wald: float) -> None:
             self.over, self.wald = over, wald
@@ -1025,8 +999,8 @@ def test_the_constancy_check_refits_each_half_and_a_moving_model_names_nothing_c
             assert (first, second) == ("half 0", "half 1")
             return self.wald, 5
 
-    def check(over: float, wald: float, halves: list, named: bool = True) -> tuple[_Search, Pool]:
-        pool = Pool(halves)
+    def check(over: float, wald: float, halves: list, named: bool = True) -> tuple[_Search, _Pool]:
+        pool = _Pool(halves)
         search = _Search(Plugin(over, wald), pool, None, 3, _Say(False))
         search.named = [NamedEffect("hysteresis", math.nan, (math.nan, math.nan), "", "", None, None)] if named else []
         search._check_constancy(final)
@@ -1035,7 +1009,7 @@ def test_the_constancy_check_refits_each_half_and_a_moving_model_names_nothing_c
     for wald, holds in ((47.7, False), (0.98, True)):   # the two 10 s logs' statistics (slow test below)
         search, pool = check(1.0, wald, ["half 0", "half 1"])
         c = search.constancy
-        assert pool.tasks == [0, 1] and c["checked"] and c["df"] == 5 and c["level"] == DM_LEVEL
+        assert [t[2] for t in pool.tasks] == [0, 1] and c["checked"] and c["df"] == 5 and c["level"] == DM_LEVEL
         assert c["p_value"] == pytest.approx(stats.chi2.sf(wald, 5), rel=1e-12)
         reasons = _reasons(search, (1.0, 1.0), (CONFIDENT_OVER_NOISE, CONFIDENT_OVER_NOISE))
         summary = _summary([], [], (1.0, 1.0), (CONFIDENT_OVER_NOISE, CONFIDENT_OVER_NOISE), [], c)
