@@ -128,6 +128,18 @@ def test_a_cluster_that_loses_its_workers_is_named(monkeypatch) -> None:
         assert time.perf_counter() - t0 < 60
 
 
+def test_workers_at_work_are_not_taken_for_lost(monkeypatch) -> None:
+    """The liveness poll asks the scheduler for its workers: the client's cached identity, refreshed in the
+    background without the workers' list, made a two-effect diagnosis under load stop with "no workers left" while
+    both workers were at work. A refresh every millisecond and a poll every 50 ms make that race (a third of the
+    cached reads empty, measured) certain over a 2 s task."""
+    import dask
+
+    monkeypatch.setattr(batch, "LIVENESS_POLL_S", 0.05)
+    with dask.config.set({"distributed.client.scheduler-info-interval": "1ms"}):
+        assert batch.run_batch(_sleep_then_triple, [2.0], workers=1) == [6.0]
+
+
 @pytest.mark.parametrize("sig, code, word", [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")])
 def test_interrupting_a_sweep_leaves_nothing_behind(tmp_path, sig, code, word) -> None:
     """Ctrl-C / SIGTERM during a sweep (compiled protocol loops on Dask threads in the process): exit 130 / 143 with
