@@ -615,7 +615,7 @@ class _Pool:
 
 class _Recorded:
     """What ``_Search._record`` asks of a plug-in, for the loop's tests with stand-in plug-ins: the model as it is,
-    and a bare step (and every refit alike in cost)."""
+    and a bare step (and every refit alike in cost, carrying nothing to the next)."""
 
     @staticmethod
     def resimulated(m: Fitted) -> Fitted:
@@ -630,6 +630,10 @@ class _Recorded:
     @staticmethod
     def refit_cost(name: str) -> float:
         return 1.0
+
+    @staticmethod
+    def effect_start(m: Fitted, name: str) -> dict[str, float]:
+        return {}
 
 
 def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -> None:
@@ -1316,6 +1320,62 @@ def test_a_candidates_refit_starts_no_worse_than_the_model_it_extends() -> None:
         assert np.array_equal(off[:4], theta)
         assert all((v == 0.0) if not c.log else (v == -2.0) for c, v in zip(coords, off[4:]))
         assert np.array_equal(heads[1 + STEP_FRACTIONS.index(1.0)], np.concatenate([theta + step, x]))
+
+
+def test_a_refit_that_did_not_test_its_candidate_starts_again_from_its_last_fit_or_the_reflected_step() -> None:
+    """``two_inertia._retry_starts``: a refit that ended where it began (every head of the screen's step the current
+    model or worse) starts again from the candidate's unknowns where its last refit left them, then from the
+    screen's point reflected into the bounds where the step put a size outside them (a negative friction), each
+    inside the bounds; neither when there is no last fit and the step stayed inside. Measured on a two-effect log
+    (a motor viscous friction and a Stribeck friction with its own static level): after Stribeck the step put b_m
+    at -6.1e-6 and every refit of the step removed 0.02 noise variances; retried, b_m reached 9.12e-6 (truth
+    9.08e-6) and was named."""
+    from ident.diagnosis.models.coordinates import LogScales, coordinates
+    from ident.diagnosis.models.two_inertia import _retry_starts
+    from ident.diagnosis.screening import ScoreTest
+
+    scales = LogScales(v_m=1e-2, v_l=1e-4, d95=1e-6, v_l_percentiles=(1e-5, 3e-5, 1e-4, 3e-4, 1e-3), K_s=10.0,
+                       f_l=1e-4, f_m=1e-3)
+    coords = coordinates("stribeck", scales)
+    size, speed = coords   # a bounded size (from 0) and a log-scaled Stribeck velocity
+    inside = np.array([0.5, -1.0])
+    assert _retry_starts(ScoreTest("stribeck", 90.0, 9.0, 2, 1e-9), coords, inside) == []
+    carried = {size.name: size.value(0.25), speed.name: speed.value(-2.0)}
+    [start] = _retry_starts(ScoreTest("stribeck", 90.0, 9.0, 2, 1e-9, carried=carried), coords, inside)
+    assert np.allclose(start, [0.25, -2.0])
+    outside = np.array([size.lo - 0.5, -1.0])
+    first, second = _retry_starts(ScoreTest("stribeck", 90.0, 9.0, 2, 1e-9, carried=carried), coords, outside)
+    assert np.allclose(first, [0.25, -2.0]) and np.allclose(second, [size.lo + 0.5, -1.0])
+    far = {size.name: size.value(size.hi * 3.0)}
+    [start] = _retry_starts(ScoreTest("stribeck", 90.0, 9.0, 2, 1e-9, carried=far), coords, inside)
+    assert np.allclose(start, [size.hi, -1.0])
+
+
+def test_a_candidates_next_refit_carries_where_its_last_refit_ended() -> None:
+    """``_Search._refits``: each refit's candidate unknowns (``plugin.effect_start``) go with the candidate's next
+    refit (``ScoreTest.carried``), the retry start of a refit that does not test it; a refit that ended above the
+    model it extended carries nothing, and the screen's own results are left as they were."""
+    from ident.diagnosis.engine import _Say, _Search
+    from ident.diagnosis.models import CandidateFit
+    from ident.diagnosis.screening import ScoreTest
+
+    def model(effects: tuple[str, ...], train: float) -> Fitted:
+        return Fitted(effects, train, 100.0, np.ones(100), 100, 4 + len(effects))
+
+    class Plugin(_Recorded):
+        @staticmethod
+        def effect_start(m: Fitted, name: str) -> dict[str, float]:
+            return {f"{name} size": m.train_cost}
+
+    current = model((), 1000.0)
+    pool = _Pool([CandidateFit("viscous_motor", model(("viscous_motor",), 900.0)),
+                  CandidateFit("hardening", model(("hardening",), 1100.0))])
+    search = _Search(Plugin(), pool, None, 3, _Say(False))
+    tests = [ScoreTest("viscous_motor", 50.0, 5.0, 1, 1e-9), ScoreTest("hardening", 40.0, 4.0, 1, 1e-8)]
+    search._refits(current, tests, "step 0")
+    search._refits(current, tests, "step 1")
+    assert [task[2].carried for task in pool.tasks] == [{}, {}, {"viscous_motor size": 900.0}, {}]
+    assert not tests[0].carried
 
 
 def test_an_effect_accepted_after_the_model_reached_the_noise_is_tentative() -> None:

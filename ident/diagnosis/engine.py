@@ -18,7 +18,8 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    an exponential Stribeck: the Stribeck refit ran out at step 2 with a 2.28x held-back gain and was never named;
    judged there, it is, and the kinematic error that had stood in for it is removed backwards). It is then named
    tentatively and its model refitted on from there (``plugin.converge``); if it is not named it is *not ruled
-   out*: no name of the diagnosis is then more than tentative.
+   out*: no name of the diagnosis is then more than tentative. Each refit carries the candidate's unknowns where
+   its last refit left them (``ScoreTest.carried``): a refit that ends where it began starts again from there.
 5. **Accept** the refitted candidate with the lowest held-back cost when it passes the one acceptance rule every
    effect (flexibility included) must pass: the held-back cost falls by more than ``MIN_GAIN``, a one-sided
    Diebold-Mariano test of the held-back losses gives p < ``DM_LEVEL``, the training BIC falls, its magnitude's
@@ -65,7 +66,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -197,6 +198,7 @@ class _Search:
         self.doubts: dict[str, list[str]] = {}  # named effect -> why the log cannot pin it (it is then tentative)
         self.notes: list[str] = []
         self.unresolved: dict[str, dict[str, Any]] = {}   # candidates not fitted and not ruled out since
+        self.carried: dict[str, dict[str, float]] = {}   # candidate -> its unknowns where its last refit left them
         self.size_checks: dict[str, Checks] = {}   # named effect -> its size's last check (``sizes``)
         self.constancy: dict[str, Any] = {}   # the final model's constancy check (``_check_constancy``)
         self.reductions: tuple[Fitted, dict[str, Fitted]] | None = None   # backward's last round: model, refits
@@ -357,8 +359,13 @@ class _Search:
     def _refits(self, model: Fitted, passing: list[ScoreTest], desc: str) -> list[CandidateFit]:
         """Each candidate of ``passing`` refitted at ``model`` on the workers (``_refit_task``), the costliest
         started first (``plugin.refit_cost``); in ``passing``'s order."""
-        return self._map(_refit_task, [(self.shared, model, t, self.budget) for t in passing], desc,
+        tests = [replace(t, carried=self.carried.get(t.candidate, {})) for t in passing]
+        fits = self._map(_refit_task, [(self.shared, model, t, self.budget) for t in tests], desc,
                          cost=[self.plugin.refit_cost(t.candidate) for t in passing])
+        for f in fits:   # where a later refit that stalls starts again (``ScoreTest.carried``)
+            if f.model is not None and f.model.train_cost < model.train_cost:
+                self.carried[f.name] = self.plugin.effect_start(f.model, f.name)
+        return fits
 
     def _map(self, fn: Any, tasks: list[tuple], desc: str, cost: list[float] | None = None) -> list[Any]:
         """``fn`` over ``tasks`` on the pool's workers, in ``tasks``' order, with a progress bar on stderr when the
@@ -668,7 +675,10 @@ def _untested(current: Fitted, fits: list[CandidateFit], passing: list[ScoreTest
     stick and slip reorder, or the first-order step does not hold there; either way it did not rule the effect out.
     Measured on a two-effect log (a motor viscous friction and a Stribeck friction with its own static level): after
     Stribeck, at 1.96x the noise, every refit of step 1 ended within 0.02 noise variances of its start, viscous motor
-    friction among them (score 1141), and each read as tested and rejected.
+    friction among them (score 1141), and each read as tested and rejected. The two-inertia plug-in now starts such
+    a refit again from the candidate's last fit and from the step reflected into its bounds
+    (``two_inertia._retry_starts``; the loop passes the last fit on, ``ScoreTest.carried``): what stays untested
+    after that is listed here.
 
     The caller applies it only at a model above its noise level: at the noise nothing is left for a refit to remove,
     and a statistic there that no refit reaches says that the screen's first order fails, not the refit (measured

@@ -90,6 +90,7 @@ class ScoreTest:
     detectable_worst: float = math.nan   # the same at the grid point where the log sees it least
     detectable_worst_at: str = ""
     record: str = ""                 # what a log would have to show for a smaller one to be seen
+    carried: dict[str, float] = field(default_factory=dict)   # its unknowns where its last refit left them (the loop)
 
     @property
     def passed(self) -> bool:

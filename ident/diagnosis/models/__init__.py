@@ -166,6 +166,11 @@ class ModelPlugin(ABC):
         carried over, what a log needs to tell the two apart). None: ``name`` has no twin here."""
         return None
 
+    def effect_start(self, model: Fitted, name: str) -> dict[str, float]:
+        """Effect ``name``'s unknowns in ``model`` (a candidate's refit), as a later refit of it may start from
+        (``ScoreTest.carried``; the names and values of ``ScoreTest.start``). Default: none."""
+        return {}
+
     def refit_cost(self, name: str) -> float:
         """The expected cost of refitting candidate ``name``, relative to the others (any unit): the order the
         workers start a step's refits in, costliest first. Never a decision: the results are the same in any order.
