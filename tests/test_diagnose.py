@@ -1351,6 +1351,17 @@ def test_a_refit_that_did_not_test_its_candidate_starts_again_from_its_last_fit_
     assert np.allclose(start, [size.hi, -1.0])
 
 
+def test_a_refit_tests_its_candidate_when_it_removes_at_least_its_degrees_of_freedom() -> None:
+    """``ScoreTest.tested_by``: the one rule the loop (training cost) and the two-inertia refit's retry (its
+    problem's cost) share; a fall below the candidate's degrees of freedom (the chi-square mean of as many
+    parameters with no effect) did not test it, whatever the screen's statistic."""
+    from ident.diagnosis.screening import ScoreTest
+
+    two = ScoreTest("stribeck", 1141.0, 900.0, 2, 1e-9)
+    assert not two.tested_by(0.02) and not two.tested_by(1.99) and two.tested_by(2.0) and two.tested_by(500.0)
+    assert ScoreTest("viscous_motor", 3.0, 3.0, 1, 0.08).tested_by(1.0)
+
+
 def test_a_candidates_next_refit_carries_where_its_last_refit_ended() -> None:
     """``_Search._refits``: each refit's candidate unknowns (``plugin.effect_start``) go with the candidate's next
     refit (``ScoreTest.carried``), the retry start of a refit that does not test it; a refit that ended above the

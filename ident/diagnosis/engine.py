@@ -668,14 +668,12 @@ def _twin_doubt(plugin: ModelPlugin, winner: CandidateFit, fits: list[CandidateF
 
 def _untested(current: Fitted, fits: list[CandidateFit], passing: list[ScoreTest], winner: CandidateFit | None
               ) -> dict[str, str]:
-    """Candidates whose refit did not test them: the screen passed them, predicting that a step along the effect
-    removes ``statistic`` noise variances of the training cost, and the refit removed fewer than the candidate's
-    degrees of freedom, the fall that as many parameters with no effect at all remove on average (the chi-square
-    mean). The score test and the refit's likelihood-ratio test are then in plain conflict: the refit stalled where
-    stick and slip reorder, or the first-order step does not hold there; either way it did not rule the effect out.
-    Measured on a two-effect log (a motor viscous friction and a Stribeck friction with its own static level): after
-    Stribeck, at 1.96x the noise, every refit of step 1 ended within 0.02 noise variances of its start, viscous motor
-    friction among them (score 1141), and each read as tested and rejected. The two-inertia plug-in now starts such
+    """Candidates whose refit did not test them (``ScoreTest.tested_by`` on the training cost): the screen passed
+    them, predicting that a step along the effect removes ``statistic`` noise variances, and the refit removed fewer
+    than the candidate's degrees of freedom. Measured on a two-effect log (a motor viscous friction and a Stribeck
+    friction with its own static level): after Stribeck, at 1.96x the noise, every refit of step 1 ended within 0.02
+    noise variances of its start, viscous motor friction among them (score 1141), and each read as tested and
+    rejected. The two-inertia plug-in now starts such
     a refit again from the candidate's last fit and from the step reflected into its bounds
     (``two_inertia._retry_starts``; the loop passes the last fit on, ``ScoreTest.carried``): what stays untested
     after that is listed here.
@@ -689,7 +687,7 @@ def _untested(current: Fitted, fits: list[CandidateFit], passing: list[ScoreTest
         if not t.screened or f is None or f.model is None or f.exhausted or f is winner:
             continue
         fall = current.train_cost - f.model.train_cost
-        if fall < t.df:
+        if not t.tested_by(fall):
             out[t.candidate] = (f"its refit removed {fall:.3g} noise variances of the training cost, fewer than its "
                                 f"{t.df} degree(s) of freedom remove by chance, where the screen's step predicted "
                                 f"{t.statistic:.4g}: the refit did not test it")

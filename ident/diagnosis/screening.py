@@ -96,6 +96,16 @@ class ScoreTest:
     def passed(self) -> bool:
         return (not self.screened) or self.p_value < SCREEN_LEVEL
 
+    def tested_by(self, fall: float) -> bool:
+        """Whether a refit that lowered a cost (in noise variances) by ``fall`` tested this candidate: it must
+        remove at least the candidate's degrees of freedom, what as many parameters with no effect at all remove on
+        average (the chi-square mean). A smaller fall, where the screen predicted ``statistic``, puts the score test
+        and the refit's likelihood-ratio test in plain conflict: the refit stalled where stick and slip reorder, or
+        the first-order step does not hold there; it did not rule the effect out. The loop applies it to the
+        training cost (``engine``), the two-inertia refit to its own problem's cost (``two_inertia``), both above
+        the model's noise level only."""
+        return fall >= self.df
+
     def row(self) -> dict[str, Any]:
         return {"candidate": self.candidate, "lm_statistic": self.statistic, "lm_robust": self.robust,
                 "df": self.df, "p_value": self.p_value, "p_robust": self.p_robust, "grid_size": self.grid_size,

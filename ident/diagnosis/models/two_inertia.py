@@ -321,17 +321,17 @@ class TwoInertiaPlugin(ModelPlugin):
                    meter: EvaluationBudget) -> tuple[np.ndarray, bool]:
         """The refit from the screen's step: (its unknowns, whether it used up its budget first). A fit that did
         returns the best point it simulated, to be judged like any other (``CandidateFit.exhausted``). A refit
-        that did not test its candidate (it removed fewer noise variances than the candidate's degrees of freedom,
-        at a model above its noise level: ``_untested`` in the loop) is run again from ``_retry_starts``, within
-        the same budget; the best point of all the runs is the refit's."""
+        that did not test its candidate (``ScoreTest.tested_by`` on the problem's cost, against the current model's,
+        at a model above its noise level) is run again from ``_retry_starts``, within the same budget; the best
+        point of all the runs is the refit's, and the budget counts as used up when any run used it up."""
         st = model.state
         coords = coordinates(test.candidate, st.scales, sens.get(test.candidate))
         x = self._start(model, test, sens)
-        runs = [_heads(st.theta, test.step, _reflected(x, coords, clip_only=True), coords)]
+        runs = [_heads(st.theta, test.step, _clipped(x, coords), coords)]
         if above_level(self.over_noise(model), self.confident_levels()):
             runs += [[np.concatenate([st.theta, r])] for r in _retry_starts(test, coords, x)]
-        best: tuple[float, np.ndarray, bool] | None = None
-        unmoved = math.inf
+        best: tuple[float, np.ndarray] | None = None
+        unmoved, exhausted = math.inf, False
         for i, heads in enumerate(runs):
             problem = ModelProblem(self.full, st.base, _fmu_effects(effects), st.scales, self.stop, self.sigma,
                                    budget=meter, sens=sens, central=False)
@@ -345,11 +345,12 @@ class TwoInertiaPlugin(ModelPlugin):
             finally:
                 problem.close()
             if best is None or cost < best[0]:
-                best = (cost, theta, spent)
-            if spent or unmoved - best[0] >= test.df:
+                best = (cost, theta)
+            exhausted = exhausted or spent
+            if spent or test.tested_by(unmoved - best[0]):
                 break
         assert best is not None
-        return best[1], best[2] or spent
+        return best[1], exhausted
 
     def _from_scratch(self, model: Fitted, effects: tuple[str, ...], test: ScoreTest, sens: Sensitivity,
                       meter: EvaluationBudget) -> tuple[np.ndarray, bool]:
@@ -660,13 +661,16 @@ def _heads(theta: np.ndarray, step: np.ndarray, x: np.ndarray, coords: list[Any]
     return heads
 
 
-def _reflected(x: np.ndarray, coords: list[Any], clip_only: bool = False) -> np.ndarray:
-    """``x`` with each coordinate outside its bounds reflected about the bound it crossed, then clipped
-    (``clip_only``: only clipped)."""
+def _clipped(x: np.ndarray, coords: list[Any]) -> np.ndarray:
+    """``x`` with each coordinate outside its bounds set to the bound it crossed."""
+    return np.clip(x, [c.lo for c in coords], [c.hi for c in coords])
+
+
+def _reflected(x: np.ndarray, coords: list[Any]) -> np.ndarray:
+    """``x`` with each coordinate outside its bounds reflected about the bound it crossed (then clipped, where the
+    reflection overshoots the other bound)."""
     lo, hi = np.array([c.lo for c in coords]), np.array([c.hi for c in coords])
-    if not clip_only:
-        x = np.where(x < lo, 2.0 * lo - x, np.where(x > hi, 2.0 * hi - x, x))
-    return np.clip(x, lo, hi)
+    return _clipped(np.where(x < lo, 2.0 * lo - x, np.where(x > hi, 2.0 * hi - x, x)), coords)
 
 
 def _retry_starts(test: ScoreTest, coords: list[Any], x: np.ndarray) -> list[np.ndarray]:
@@ -687,9 +691,9 @@ def _retry_starts(test: ScoreTest, coords: list[Any], x: np.ndarray) -> list[np.
         out.append(np.array([c.x_of(test.carried[c.name]) if c.name in test.carried else xi
                              for c, xi in zip(coords, x)]))
     inside = _reflected(x, coords)
-    if not np.array_equal(inside, _reflected(x, coords, clip_only=True)):
+    if not np.array_equal(inside, _clipped(x, coords)):
         out.append(inside)
-    return [_reflected(r, coords, clip_only=True) for r in out]
+    return [_clipped(r, coords) for r in out]
 
 
 def _ipopt_or_best(problem: ModelProblem, head: np.ndarray, lo: np.ndarray, hi: np.ndarray,
