@@ -673,10 +673,9 @@ def _untested(current: Fitted, fits: list[CandidateFit], passing: list[ScoreTest
     than the candidate's degrees of freedom. Measured on a two-effect log (a motor viscous friction and a Stribeck
     friction with its own static level): after Stribeck, at 1.96x the noise, every refit of step 1 ended within 0.02
     noise variances of its start, viscous motor friction among them (score 1141), and each read as tested and
-    rejected. The two-inertia plug-in now starts such
-    a refit again from the candidate's last fit and from the step reflected into its bounds
-    (``two_inertia._retry_starts``; the loop passes the last fit on, ``ScoreTest.carried``): what stays untested
-    after that is listed here.
+    rejected. The two-inertia plug-in now starts such a refit again from the candidate's last fit and from the step
+    reflected into its bounds (``two_inertia._retry_starts``; the loop passes the last fit on, ``ScoreTest.carried``):
+    what stays untested after that is listed here.
 
     The caller applies it only at a model above its noise level: at the noise nothing is left for a refit to remove,
     and a statistic there that no refit reaches says that the screen's first order fails, not the refit (measured
