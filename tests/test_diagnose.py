@@ -204,9 +204,9 @@ def test_the_detection_limit_is_the_size_the_screen_passes_with_its_power_or_the
 
 def test_each_effect_not_named_says_why_in_numbers() -> None:
     """``engine._unseen``, from the last screen that ran: an effect that passed it but lost at the acceptance rule
-    quotes its refit's reason; one that did not pass quotes the size below which the log cannot tell it from none
-    (and, on a grid, where it shows it best and least); a named effect and one without a limit (a model that
-    computes none) get no sentence."""
+    quotes its refit's reason and the size from which the loop names one (where the model computes it); one that
+    did not pass quotes the size below which the log cannot tell it from none (and, on a grid, where it shows it
+    best and least); a named effect and one without a limit (a model that computes none) get no sentence."""
     from ident.diagnosis.engine import _unseen
     from ident.diagnosis.result import DiagnosisStep, NamedEffect
 
@@ -224,18 +224,25 @@ def test_each_effect_not_named_says_why_in_numbers() -> None:
                  {**row, "candidate": "hardening", "lm_statistic": 90.0, "p_value": 1e-20, "passed": True,
                   "detectable": 60.0},
                  {**row, "candidate": "viscous_load", "detectable": 1e-5},
-                 {**row, "candidate": "kinematic_error", "detectable": math.nan}],
-                [{"candidate": "hardening", "why": "held-back cost falls 1.002x, not more than 1.01x"}])
+                 {**row, "candidate": "kinematic_error", "detectable": math.nan},
+                 {**row, "candidate": "viscous_motor", "lm_statistic": 40.0, "p_value": 1e-9, "passed": True,
+                  "detectable": math.nan}],
+                [{"candidate": "hardening", "why": "held-back cost falls 1.002x, not more than 1.01x"},
+                 {"candidate": "viscous_motor", "why": "its refit used up its budget"}])
     named = [NamedEffect("viscous_load", 1.0, (0.5, 1.5), "", "", None, None)]
     out = _unseen([step([], []), old, last, step([], [])], named)
-    assert len(out) == 2
+    assert len(out) == 3
     assert out[0] == ("stribeck is not named: this log cannot tell one below 2e-06 from none (at step 2's model, "
                       "the size the screen passes with 95% power and a fit of it removes the 1% of the cost the rule "
                       "asks, where the log shows it best (Stribeck velocity 0.01 rad/s); where it shows it least "
                       "(Stribeck velocity 0.001 rad/s) only from 3e-05); to see a smaller one, record slower "
                       "slides")
     assert out[1] == ("hardening is not named: it passed the screen at step 2 (score 90, p = 1e-20); refitted: "
-                      "held-back cost falls 1.002x, not more than 1.01x")
+                      "held-back cost falls 1.002x, not more than 1.01x; the loop names one only from 60 here (at "
+                      "step 2's model, the size the screen passes with 95% power and a fit of it removes the 1% of "
+                      "the cost the rule asks)")
+    assert out[2] == ("viscous_motor is not named: it passed the screen at step 2 (score 40, p = 1e-09); refitted: "
+                      "its refit used up its budget")
     assert _unseen([step([], [])], []) == []
 
 

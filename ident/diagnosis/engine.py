@@ -734,8 +734,10 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
 
 def _unseen(steps: list[DiagnosisStep], named: list[NamedEffect]) -> list[str]:
     """Each effect of the last screen that is not named: why, in numbers. One that passed the screen lost at the
-    acceptance rule; one that did not is either absent or smaller than the size the loop could name there
-    (``screening.detection_limit``): this log cannot tell which."""
+    acceptance rule, and the size the loop could name there (``screening.detection_limit``) says how large it would
+    have had to be (measured on an independent weak kinematic-error log: it passed the screen, its refit did not
+    improve the held-back prediction, and only the screen table said that the log names one from 100x the truth);
+    one that did not is either absent or smaller than that size: this log cannot tell which."""
     screens = [(k, s.screen) for k, s in enumerate(steps) if "detectable" in s.screen]
     if not screens:
         return []
@@ -749,18 +751,27 @@ def _unseen(steps: list[DiagnosisStep], named: list[NamedEffect]) -> list[str]:
         if row.candidate in gone:
             out.append(f"{row.candidate} is not named: {gone[row.candidate]}")
         elif row.passed:
+            limit = (f"; the loop names one only from {row.detectable:.3g}{after_number(row.unit)} here "
+                     f"{_limit_words(row, k)}" if math.isfinite(row.detectable) else "")
             out.append(f"{row.candidate} is not named: it passed the screen at step {k} (score "
-                       f"{row.lm_statistic:.4g}, p = {row.p_value:.2g}); refitted: {why.get(row.candidate, '-')}")
+                       f"{row.lm_statistic:.4g}, p = {row.p_value:.2g}); refitted: {why.get(row.candidate, '-')}"
+                       f"{limit}")
         elif math.isfinite(row.detectable):
-            at = (f", where the log shows it best ({row.detectable_at}); where it shows it least "
-                  f"({row.detectable_worst_at}) only from {row.detectable_worst:.3g}{after_number(row.unit)}"
-                  if row.detectable_at else "")
-            record = f"; to see a smaller one, record {row.record}" if row.record else ""
             out.append(f"{row.candidate} is not named: this log cannot tell one below {row.detectable:.3g}"
-                       f"{after_number(row.unit)} from none (at step {k}'s model, the size the screen passes with "
-                       f"{DETECTION_POWER:.0%} power and a fit of it removes the {MIN_GAIN - 1:.0%} of the cost the "
-                       f"rule asks{at}){record}")
+                       f"{after_number(row.unit)} from none {_limit_words(row, k)}")
     return out
+
+
+def _limit_words(row: Any, k: int) -> str:
+    """What a screen row's ``detectable`` is, where the log shows it best and least, and what to record for a
+    smaller one: the same words whether the candidate passed the screen (then the acceptance rule's share of the
+    cost, not the screen, usually sets the limit) or not."""
+    at = (f", where the log shows it best ({row.detectable_at}); where it shows it least "
+          f"({row.detectable_worst_at}) only from {row.detectable_worst:.3g}{after_number(row.unit)}"
+          if row.detectable_at else "")
+    record = f"; to see a smaller one, record {row.record}" if row.record else ""
+    return (f"(at step {k}'s model, the size the screen passes with {DETECTION_POWER:.0%} power and a fit of it "
+            f"removes the {MIN_GAIN - 1:.0%} of the cost the rule asks{at}){record}")
 
 
 def _departed(steps: list[DiagnosisStep]) -> dict[str, str]:
