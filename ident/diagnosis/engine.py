@@ -764,8 +764,9 @@ def _unseen(steps: list[DiagnosisStep], named: list[NamedEffect]) -> list[str]:
 
 def _limit_words(row: Any, k: int) -> str:
     """What a screen row's ``detectable`` is, where the log shows it best and least, and what to record for a
-    smaller one: the same words whether the candidate passed the screen (then the acceptance rule's share of the
-    cost, not the screen, usually sets the limit) or not."""
+    smaller one: the same words whether the candidate passed the screen or not (the limit is the larger of the size
+    the screen passes with its power and the size whose fit removes the share of the cost the acceptance rule asks,
+    so a candidate can pass the screen below it)."""
     at = (f", where the log shows it best ({row.detectable_at}); where it shows it least "
           f"({row.detectable_worst_at}) only from {row.detectable_worst:.3g}{after_number(row.unit)}"
           if row.detectable_at else "")
