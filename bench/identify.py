@@ -10,14 +10,15 @@ Logs come from the independent reference generator (``tests/reference/generator`
   the truth, the identifiability verdict, sigma_load_rad over the true noise, the residual over the noise, warnings;
   the 95 % coverage over the identifiable pairs (target 90-99 %), the estimates within 3 bound-sigmas wherever the
   bound is <= 1 %, the noise ratios (target within 20 %);
-- **speed** (the same seeds as 10 s logs at 5 kHz, one process, one core): wall time per identification (target
+- **speed** (the same seeds as 10 s logs at 5 kHz, one process; ``--helper`` on / off / auto: whether the fit runs
+  its independent simulations half on the second core, ``ident.fitting.ahead``): wall time per identification (target
   median <= 10 s, max <= 30 s), and beside it each fit's residual over the noise, its mismatch warning and its
   errors against the truth;
 - **memory**: peak resident memory of ``hdrive identify`` (a fresh process) on 10, 30 and 60 s logs at 5 kHz (target
   linear, <= 1 GB at 60 s).
 
 Prints a summary and writes bench/results/identify.json. Usage:
-``python bench/identify.py [--cases N] [--speed N] [--memory] [--out PATH]``.
+``python bench/identify.py [--cases N] [--speed N] [--memory] [--helper auto|on|off] [--out PATH]``.
 """
 from __future__ import annotations
 
@@ -37,6 +38,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from ident.fitting import ahead
 from ident.fitting.identify import NAMES, IdentificationError, identify
 from ident.fitting.logs import LogError
 from tests.ident_support import cramer_rao_at_truth, read_back
@@ -147,10 +149,13 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--cases", type=int, default=60, help="suite cases (default 60)")
     ap.add_argument("--speed", type=int, default=60, help="10 s / 5 kHz logs timed (default 60; 0 skips)")
     ap.add_argument("--memory", action="store_true", help="also measure peak memory on 10/30/60 s logs")
+    ap.add_argument("--helper", choices=("auto", "on", "off"), default="auto",
+                    help="simulations run ahead on the second core (ident.fitting.ahead.MODE; default auto)")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "identify.json"))
     args = ap.parse_args(argv)
     cases = IDENTIFICATION_SLOW_SUITE[: args.cases]
-    result: dict = {"machine": machine()}
+    ahead.MODE = args.helper
+    result: dict = {"machine": machine(), "helper": args.helper}
     with tempfile.TemporaryDirectory(prefix="hdrive-bench-") as tmp:
         rows = []
         for seed, kind in cases:

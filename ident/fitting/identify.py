@@ -43,7 +43,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
@@ -53,6 +53,7 @@ import numpy as np
 from ..common.blas import one_blas_thread
 from ..model.params import DriveParams, ParameterError
 from ..model.plant import Plant, PlantError
+from .ahead import Result, block, run_ahead, usable
 from .logs import DriveLog, LogError
 from .noise import noise_std, residual_noise_std, white_noise_std
 from .result import BOUNDS, NAMES, Z95, Estimate, TwoInertiaFit, at_bound, param_bounds
@@ -173,18 +174,21 @@ class OutputError:
         self.budget: EvaluationBudget | None = None  # simulations allowed (None: unlimited)
         self.exhausted = False      # a simulation was refused by the budget (``fit_ipopt`` raises BudgetExceeded)
         self._cache: dict[bytes, np.ndarray] = {}
+        self._ahead: dict[bytes, Result] = {}   # simulations run ahead (``ahead``), by point
 
     def params(self, theta: np.ndarray) -> DriveParams:
         K, J, f = np.exp(theta[:3])
         return self.base.with_values(K_star=float(K), J_l_star=float(J), f_l_star=float(f))
 
-    def simulate(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """(q_m, q_l + offset, offset): the model's view of the log for parameters ``theta``."""
+    def simulate(self, theta: np.ndarray, plant: Plant | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+        """(q_m, q_l + offset, offset): the model's view of the log for parameters ``theta`` (on ``plant``, another
+        instance of the same FMU: ``ahead``; by default the problem's own)."""
+        plant = self.plant if plant is None else plant
         p = self.params(theta)
         d0 = float(theta[3]) * p.f_l / p.K_s  # initial deflection, a fraction of the static band
         q_m0 = float(self.y_m[0])
-        self.plant.reset(p, q_m_start=q_m0, q_l_start=p.load_angle_at(q_m0, d0), v_m_start=0.0, v_l_start=0.0)
-        q_m, q_l = self.plant.positions(self.torque, self.log.dt)
+        plant.reset(p, q_m_start=q_m0, q_l_start=p.load_angle_at(q_m0, d0), v_m_start=0.0, v_l_start=0.0)
+        q_m, q_l = plant.positions(self.torque, self.log.dt)
         offset = float(np.mean(self.y_l - q_l))  # the load sensor's zero, projected out
         q_m = q_m + float(np.mean(self.y_m - q_m))  # and the encoder's unknown sub-count start position
         return q_m, q_l + offset, offset
@@ -218,19 +222,47 @@ class OutputError:
         """``simulate``, paid from the budget (when there is one): refused when it cannot pay for one more, then
         charged with what the FMU counted (``EvaluationBudget.charge``; a simulation that fails counts once)."""
         if self.budget is None:
-            return self.simulate(theta)
+            return self._simulated(theta)[0]
         try:
             self.budget.check(self.stop)
         except BudgetExceeded:
             self.exhausted = True
             raise
         try:
-            out = self.simulate(theta)
+            out, work = self._simulated(theta)
         except BaseException:
             self.budget.charge(self.stop)
             raise
-        self.budget.charge(self.stop, self.plant.model_evaluations())
+        self.budget.charge(self.stop, work)
         return out
+
+    def _simulated(self, theta: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray, float], float | None]:
+        """(``simulate``'s output, the FMU's work for it): run ahead (``ahead``) or now."""
+        done = self._ahead.pop(theta.tobytes(), None)
+        if done is None:
+            return self.simulate(theta), (self.plant.model_evaluations() if self.budget is not None else None)
+        out, work, error = done
+        if error is not None:
+            raise error
+        return out, work
+
+    @contextmanager
+    def ahead(self, points: Sequence[np.ndarray]) -> Iterator[None]:
+        """Inside the block, the simulations of ``points`` (those not cached) are already done, half of them on the
+        second core (``ident.fitting.ahead``); each waits until ``residuals`` asks for it and then counts as
+        simulated there. Points left unasked are dropped at the end of the block."""
+        keys, todo = set(self._cache), []
+        for th in points:
+            th = np.asarray(th, dtype=float)
+            if th.tobytes() not in keys:
+                keys.add(th.tobytes())
+                todo.append(th)
+        if usable(self.stop, len(todo)) and not self.interrupted:
+            self._ahead = run_ahead(self.simulate, self.plant, self.base, todo, lambda: bool(self.interrupted))
+        try:
+            yield
+        finally:
+            self._ahead = {}
 
     def set_sigma_load(self, sigma: float) -> None:
         """Weigh the load rows with a new noise level (forgets the cached simulations)."""
@@ -258,7 +290,7 @@ class OutputError:
         ``fd_steps`` (per unknown, when set) widens the steps: the continuation's search uses a tenth of the previous
         window's standard deviations, so that the Jacobian follows the cost's trend rather than its kinks."""
         theta = np.asarray(theta, dtype=float)
-        cols = []
+        steps = []
         for i in range(theta.size):
             h = 3e-8 if i < 3 else 1e-6
             if self.fd_steps is not None:
@@ -266,7 +298,16 @@ class OutputError:
             up, down = theta.copy(), theta.copy()
             up[i] += h
             down[i] -= h
-            cols.append((self.residuals(up) - self.residuals(down)) / (2 * h))
+            steps.append((up, down, 2 * h))
+        return self.differences(theta, steps)
+
+    def differences(self, theta: np.ndarray, steps: list[tuple[np.ndarray, np.ndarray, float] | None]) -> np.ndarray:
+        """The finite-difference Jacobian from one (up, down, their distance) per unknown, or None for an unknown
+        held by its bounds (a zero column); its simulations run ahead (``ahead``), then are used in column order."""
+        points = [p for s in steps if s is not None for p in s[:2]] + ([theta] if None in steps else [])
+        with self.ahead(points):
+            cols = [np.zeros_like(self.residuals(theta)) if s is None else
+                    (self.residuals(s[0]) - self.residuals(s[1])) / s[2] for s in steps]
         return np.column_stack(cols)
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -926,11 +967,14 @@ def _grid_costs(problem: OutputError, base: DriveParams, start: dict[str, Any], 
     afterwards)."""
     try:
         out = []
-        for th in _grid(base, start, f_hz, extras, *problem.bounds()):
-            c = problem.cost(th)
-            problem.clear_cache()
-            if math.isfinite(c):
-                out.append((c, th))
+        points, size = _grid(base, start, f_hz, extras, *problem.bounds()), block(problem.stop)
+        for k in range(0, len(points), size):
+            with problem.ahead(points[k:k + size]):
+                for th in points[k:k + size]:
+                    c = problem.cost(th)
+                    problem.clear_cache()
+                    if math.isfinite(c):
+                        out.append((c, th))
         return out
     finally:
         problem.close()
@@ -1071,8 +1115,9 @@ def _d0_scan(problem: OutputError, theta: np.ndarray, points: int, refine: bool 
     (measured on two independent logs, a chirp and a step log: the fits from there ended at 540-2000x the noise)."""
     grid = (np.arange(points) + 0.5) / points * 2 - 1
     at = [np.concatenate([theta[:3], [d], theta[4:]]) for d in grid]
-    costs = np.array([problem.cost(x) for x in at])
-    cands = [(problem.cost(theta), theta)] + list(zip(costs, at))
+    with problem.ahead(at + [theta]):
+        costs = np.array([problem.cost(x) for x in at])
+        cands = [(problem.cost(theta), theta)] + list(zip(costs, at))
     h = 2.0 / points
     for i in range(points) if refine else ():
         if costs[i] <= costs[max(i - 1, 0)] and costs[i] <= costs[min(i + 1, points - 1)] and np.isfinite(costs[i]):
@@ -1295,12 +1340,12 @@ def _scale_scan(problem: OutputError, theta: np.ndarray, lo: np.ndarray, hi: np.
 
     def scan(steps: list[np.ndarray]) -> None:
         nonlocal best, best_cost
-        base = best
-        for step in steps:
-            cand = np.clip(base + np.pad(step, (0, base.size - step.size)), lo, hi)
-            cost = problem.cost(cand)
-            if cost < best_cost:
-                best, best_cost = cand, cost
+        cands = [np.clip(best + np.pad(step, (0, best.size - step.size)), lo, hi) for step in steps]
+        with problem.ahead(cands):
+            for cand in cands:
+                cost = problem.cost(cand)
+                if cost < best_cost:
+                    best, best_cost = cand, cost
         problem.clear_cache()
 
     # scale and frequency together (they trade off in the both-slipping phases), then the friction

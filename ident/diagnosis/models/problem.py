@@ -159,10 +159,10 @@ class ModelProblem(OutputError):
         candidates, uses them; the reported intervals never do)."""
         theta = np.asarray(theta, dtype=float)
         lo, hi = self.bounds()
-        cols = []
+        steps: list[tuple[np.ndarray, np.ndarray, float] | None] = []
         for i in range(theta.size):
             if lo[i] == hi[i]:
-                cols.append(np.zeros_like(self.residuals(theta)))
+                steps.append(None)
                 continue
             h = 3e-8 if i < 3 else 1e-6
             if self.fd_steps is not None and i < self.fd_steps.size:  # the continuation's search steps
@@ -170,8 +170,8 @@ class ModelProblem(OutputError):
             up, down = theta.copy(), theta.copy()
             up[i] = min(theta[i] + h, hi[i])
             down[i] = max(theta[i] - h, lo[i]) if self.central or up[i] == theta[i] else theta[i]
-            cols.append((self.residuals(up) - self.residuals(down)) / (up[i] - down[i]))
-        return np.column_stack(cols)
+            steps.append((up, down, up[i] - down[i]))
+        return self.differences(theta, steps)
 
     def load_rows(self) -> slice:
         """The load sensor's rows of the residual vector."""

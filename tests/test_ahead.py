@@ -1,0 +1,54 @@
+"""Simulations run ahead on the second core (``ident.fitting.ahead``) change no answer, only how long it takes.
+
+Logs from the independent generator (seeds 4301-4303, in neither the product nor its other tests). Each fit runs
+twice in this process, with the helper thread and without it, and everything the fit reports must be equal to the
+last bit: parameters, costs, simulation counts, the stages of the continuation; under an evaluation budget that runs
+out in the middle of a Jacobian, the same simulations are charged and the same one is refused.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import ident.fitting.ahead as ahead
+from ident.fitting.identify import BudgetExceeded, EvaluationBudget, OutputError, base_params, identify
+from tests.ident_support import read_back
+from tests.reference.generator import identification_case
+
+
+@pytest.mark.parametrize("seed, kind", [(4301, "steps"), (4302, "chirp")])
+def test_identify_gives_the_same_fit_with_and_without_the_helper(seed, kind, tmp_path, monkeypatch) -> None:
+    log = read_back(identification_case(seed, kind, duration_s=2.0), tmp_path)
+    monkeypatch.setattr(ahead, "MODE", "off")
+    alone = identify(log)
+    monkeypatch.setattr(ahead, "MODE", "on")
+    before = ahead.helped()
+    helped = identify(log)
+    assert ahead.helped() > before   # the helper did run
+    np.testing.assert_array_equal(helped.theta, alone.theta)
+    assert helped.sigma_load_rad == alone.sigma_load_rad
+    assert repr(helped.stages) == repr(alone.stages) and repr(helped.start) == repr(alone.start)
+    assert {k: e.value for k, e in helped.estimates.items()} == {k: e.value for k, e in alone.estimates.items()}
+
+
+def test_a_jacobian_and_a_budget_are_the_same_with_and_without_the_helper(tmp_path, monkeypatch) -> None:
+    """The central-difference Jacobian (8 simulations) is equal to the last bit; a budget of 5.5 simulations runs out
+    in its middle: the first five are charged and the sixth refused, whether the eight ran ahead or not."""
+    log = read_back(identification_case(4303, "default", duration_s=2.0), tmp_path)
+    base = base_params(log)
+    theta = np.array([np.log(base.K_star), np.log(base.J_l_star), np.log(base.f_l_star), 0.0])
+    runs = {}
+    for enabled in (False, True):
+        monkeypatch.setattr(ahead, "MODE", "on" if enabled else "off")
+        problem, limited = OutputError(log, base), OutputError(log, base)
+        limited.budget = EvaluationBudget(limit=5.5 * limited.stop)
+        try:
+            jac = problem.jacobian(theta)
+            with pytest.raises(BudgetExceeded):
+                limited.jacobian(theta)
+            runs[enabled] = (jac, (limited.budget.used, limited.evaluations, limited.exhausted))
+        finally:
+            problem.close()
+            limited.close()
+    np.testing.assert_array_equal(runs[True][0], runs[False][0])
+    assert runs[True][1] == runs[False][1] == (5.0 * log.n, 5, True)
