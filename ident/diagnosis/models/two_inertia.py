@@ -331,7 +331,7 @@ class TwoInertiaPlugin(ModelPlugin):
         if above_level(self.over_noise(model), self.confident_levels()):
             runs += [[np.concatenate([st.theta, r])] for r in _retry_starts(test, coords, x)]
         best: tuple[float, np.ndarray] | None = None
-        unmoved, exhausted = math.inf, False
+        unmoved, spent = math.inf, False
         for i, heads in enumerate(runs):
             problem = ModelProblem(self.full, st.base, _fmu_effects(effects), st.scales, self.stop, self.sigma,
                                    budget=meter, sens=sens, central=False)
@@ -346,11 +346,10 @@ class TwoInertiaPlugin(ModelPlugin):
                 problem.close()
             if best is None or cost < best[0]:
                 best = (cost, theta)
-            exhausted = exhausted or spent
-            if spent or test.tested_by(unmoved - best[0]):
+            if spent or test.tested_by(unmoved - best[0]):   # a run that used up the budget is the last
                 break
         assert best is not None
-        return best[1], exhausted
+        return best[1], spent
 
     def _from_scratch(self, model: Fitted, effects: tuple[str, ...], test: ScoreTest, sens: Sensitivity,
                       meter: EvaluationBudget) -> tuple[np.ndarray, bool]:
@@ -688,12 +687,12 @@ def _retry_starts(test: ScoreTest, coords: list[Any], x: np.ndarray) -> list[np.
     2.9x lower held-back cost. Both starts come from the log's own fits, nothing from a table."""
     out = []
     if test.carried:
-        out.append(np.array([c.x_of(test.carried[c.name]) if c.name in test.carried else xi
-                             for c, xi in zip(coords, x)]))
-    inside = _reflected(x, coords)
+        out.append(_clipped(np.array([c.x_of(test.carried[c.name]) if c.name in test.carried else xi
+                                      for c, xi in zip(coords, x)]), coords))
+    inside = _reflected(x, coords)   # already inside the bounds
     if not np.array_equal(inside, _clipped(x, coords)):
         out.append(inside)
-    return [_clipped(r, coords) for r in out]
+    return out
 
 
 def _ipopt_or_best(problem: ModelProblem, head: np.ndarray, lo: np.ndarray, hi: np.ndarray,
