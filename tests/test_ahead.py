@@ -42,8 +42,10 @@ def test_a_jacobian_and_a_budget_are_the_same_with_and_without_the_helper(tmp_pa
         monkeypatch.setattr(ahead, "MODE", "on" if enabled else "off")
         problem, limited = OutputError(log, base), OutputError(log, base)
         limited.budget = EvaluationBudget(limit=5.5 * limited.stop)
+        before = ahead.helped()
         try:
             jac = problem.jacobian(theta)
+            assert (ahead.helped() > before) == enabled   # the helper ran exactly when it was on
             with pytest.raises(BudgetExceeded):
                 limited.jacobian(theta)
             runs[enabled] = (jac, (limited.budget.used, limited.evaluations, limited.exhausted))

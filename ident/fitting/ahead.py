@@ -79,8 +79,8 @@ def idle_core() -> bool:
     """Whether a core is idle at this instant: fewer threads ready to run than cores, this one included (Linux's
     /proc/loadavg; elsewhere the one-minute load average under ``CORES`` - 1). Why: the helper costs about 9 % more
     CPU than the fit alone (measured: 95.5 s of CPU for 65.5 s of wall against 87.3 s alone, a 10 s torque-step log);
-    where every core is busy (the test run's two processes, a loaded machine) that is lost time: the default test
-    run took 583 s with the helper always on, 486 s without. Only the speed depends on it, never a result."""
+    where every core is busy (the test run's two processes, a loaded machine) that CPU is taken from the other
+    work. Only the speed depends on it, never a result."""
     try:
         with open("/proc/loadavg") as f:
             running = int(f.read().split()[3].split("/")[0])
