@@ -121,7 +121,7 @@ def score(case: Case, truth: dict[str, Any], diag: Any, elapsed: float) -> dict[
     screen = diag.steps[0].screen
     out = {"case": case.stem, "class": case.cls, "hidden": hidden, "named": named, "confident": confident,
            "right": sorted(set(library) & set(named)), "missed": sorted(set(library) - set(named)),
-           "false": sorted(set(named) - set(library)), "elapsed_s": elapsed,
+           "false": sorted(set(named) - set(library)), "elapsed_s": elapsed, "stage_s": dict(diag.stage_s),
            "screen_first": str(screen.iloc[0].candidate) if len(screen) else None,
            "screen_first_passed": bool(screen.iloc[0].passed) if len(screen) else None,
            "snr": truth.get("snr", {}), "unexplained": [u["regime"] for u in diag.unexplained],

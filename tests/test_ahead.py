@@ -7,6 +7,8 @@ out in the middle of a Jacobian, the same simulations are charged and the same o
 """
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pytest
 
@@ -54,3 +56,32 @@ def test_a_jacobian_and_a_budget_are_the_same_with_and_without_the_helper(tmp_pa
             limited.close()
     np.testing.assert_array_equal(runs[True][0], runs[False][0])
     assert runs[True][1] == runs[False][1] == (5.0 * log.n, 5, True)
+
+
+def test_a_task_in_another_thread_uses_the_helper_with_the_same_answer(tmp_path, monkeypatch) -> None:
+    """A Dask worker runs its tasks outside the main thread: a fit there uses the helper too (when a core is idle),
+    with the Jacobian equal to the last bit."""
+    log = read_back(identification_case(4303, "default", duration_s=2.0), tmp_path)
+    base = base_params(log)
+    theta = np.array([np.log(base.K_star), np.log(base.J_l_star), np.log(base.f_l_star), 0.0])
+    monkeypatch.setattr(ahead, "MODE", "on")
+    out: dict[str, object] = {}
+
+    def task() -> None:
+        problem = OutputError(log, base)
+        try:
+            before = ahead.helped()
+            out["jac"], out["helped"] = problem.jacobian(theta), ahead.helped() - before
+        finally:
+            problem.close()
+
+    worker = threading.Thread(target=task, name="Dask-Worker-Threads'-1")
+    worker.start()
+    worker.join()
+    assert out["helped"] > 0
+    monkeypatch.setattr(ahead, "MODE", "off")
+    problem = OutputError(log, base)
+    try:
+        np.testing.assert_array_equal(out["jac"], problem.jacobian(theta))
+    finally:
+        problem.close()

@@ -1167,6 +1167,11 @@ def test_cli_json_progress_and_fmu(tmp_path):
     assert any(d.startswith("kinematic error: its 2/rev alone fitted") for d in data["derivations"])
     assert data["steps"][0]["predicted_resolution_m"] > 0
     assert (out / "diagnosis.md").is_file() and (out / "diagnosis.json").is_file()
+    # where the time went, stage by stage: disjoint parts of the whole, the base fit first, said on stderr too
+    stages = data["stage_s"]
+    assert list(stages)[0] == "base fit" and "report and FMU" in stages and "step 0" in stages, stages
+    assert 0 < sum(stages.values()) <= data["elapsed_s"]
+    assert "time: base fit" in proc.stderr
     from fmpy import read_model_description
 
     starts = {v.name: v.start for v in read_model_description(data["fmu"]).modelVariables}

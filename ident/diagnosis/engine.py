@@ -66,9 +66,10 @@ from __future__ import annotations
 import math
 import sys
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 import pandas as pd
@@ -141,6 +142,17 @@ def verdict(current: Fitted, cand: Fitted) -> Verdict:
     return v
 
 
+@contextmanager
+def timed(stages: dict[str, float], stage: str) -> Iterator[None]:
+    """The wall seconds the block takes, added to ``stages[stage]``: where a diagnosis's time went (the result's
+    ``stage_s``). No decision reads them."""
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        stages[stage] = stages.get(stage, 0.0) + time.perf_counter() - t0
+
+
 class _Say:
     """Progress on stderr: elapsed seconds and a message."""
 
@@ -202,6 +214,7 @@ class _Search:
         self.size_checks: dict[str, Checks] = {}   # named effect -> its size's last check (``sizes``)
         self.constancy: dict[str, Any] = {}   # the final model's constancy check (``_check_constancy``)
         self.reductions: tuple[Fitted, dict[str, Fitted]] | None = None   # backward's last round: model, refits
+        self.stage_s: dict[str, float] = {}   # wall seconds per stage (``timed``)
 
     @property
     def shared(self) -> Any:
@@ -212,15 +225,17 @@ class _Search:
 
     def run(self) -> Fitted:
         self.say(f"fitting the base {self.plugin.kind} model ...")
-        current = self.plugin.fit_base()
-        self._record(current, None, None, {})
+        with timed(self.stage_s, "base fit"):
+            current = self.plugin.fit_base()
+            self._record(current, None, None, {})
         self.say(f"base model: {self._gap(current)}")
         refreshed = 0
         while len([e for e in current.effects]) < self.max_effects:
             names = self.plugin.candidates(current)
             if not names:
                 break
-            nxt = self._step(current, names)
+            with timed(self.stage_s, f"step {len(self.steps) - 1}"):
+                nxt = self._step(current, names)
             if nxt is None:
                 break
             if nxt is current:  # a drop test left a better-converged model in place of the current one
@@ -230,10 +245,17 @@ class _Search:
                     break
                 continue
             current, refreshed = nxt, 0   # a step may replace its model twice; a third time ends the search there
-        current = self._backward(current)
-        exchanged = self._exchange(current)
-        final = self._settle(current if exchanged is current else self._backward(exchanged))
-        self._check_constancy(final)
+        with timed(self.stage_s, "backward elimination"):
+            current = self._backward(current)
+        with timed(self.stage_s, "exchange"):
+            exchanged = self._exchange(current)
+        if exchanged is not current:
+            with timed(self.stage_s, "backward elimination"):
+                exchanged = self._backward(exchanged)
+        with timed(self.stage_s, "size search"):
+            final = self._settle(exchanged)
+        with timed(self.stage_s, "constancy check"):
+            self._check_constancy(final)
         return final
 
     def _check_constancy(self, final: Fitted) -> None:
@@ -887,17 +909,20 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
     with WorkerPool(workers, scheduler) as pool:
         search = _Search(plugin, pool, budget, max_effects, say)
         final = search.run()
-        named, unexplained, table, summary = _conclude(search, final)
+        with timed(search.stage_s, "conclusions"):
+            named, unexplained, table, summary = _conclude(search, final)
     diag = Diagnosis(plugin.kind, search.steps, named, unexplained, table, notes=search.notes + plugin.notes(),
                      not_ruled_out=search.not_ruled_out, derivations=plugin.derivations(), summary=summary,
-                     budget=budget, constancy=search.constancy)
+                     budget=budget, constancy=search.constancy, stage_s=search.stage_s)
     for line in summary:
         say(line)
     if out_dir is not None:
         from .report import write_diagnosis
 
-        write_diagnosis(diag, plugin, search.models, out_dir, export_fmu=export_fmu)
+        with timed(search.stage_s, "report and FMU"):
+            write_diagnosis(diag, plugin, search.models, out_dir, export_fmu=export_fmu)
     diag.elapsed_s = say.elapsed()
+    say("time: " + ", ".join(f"{k} {v:.1f} s" for k, v in search.stage_s.items()))
     return diag
 
 

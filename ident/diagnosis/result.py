@@ -96,6 +96,7 @@ class Diagnosis:
     fmu_note: str = ""                                      # what the exported FMU is, or why there is none
     budget: float | None = None                             # simulations allowed per candidate (training logs)
     constancy: dict[str, Any] = field(default_factory=dict)   # the final model's two-halves check (the engine's)
+    stage_s: dict[str, float] = field(default_factory=dict)   # wall seconds per stage, in order (read by no decision)
 
     def to_dict(self) -> dict[str, Any]:
         return {"model": self.model, "summary": self.summary, "steps": [s.to_dict() for s in self.steps],
@@ -103,7 +104,7 @@ class Diagnosis:
                 "not_ruled_out": self.not_ruled_out, "fmu": self.fmu, "fmu_note": self.fmu_note,
                 "residual_table": _records(self.residual_table), "files": self.files, "elapsed_s": self.elapsed_s,
                 "budget_training_logs": self.budget, "derivations": self.derivations, "notes": self.notes,
-                "constancy": self.constancy}
+                "constancy": self.constancy, "stage_s": self.stage_s}
 
     def to_frame(self) -> pd.DataFrame:
         """One row per step: what was added and the gap after it."""

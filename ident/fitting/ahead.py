@@ -15,8 +15,9 @@ on any machine and under any load. A point the budget would have refused is simu
 
 Why a thread and not a process: the simulations run in C with the GIL released (ctypes), so a thread gets the
 second core without copying the log to another process; IPOPT itself (whose linear solver is not thread-safe) runs
-only in the calling thread. Only the main thread uses the helper: a Dask worker's tasks share their cores with the
-other workers already.
+only in the calling thread. A Dask worker's task uses it too, when a core is idle (``idle_core``): the last refits
+of a diagnosis step run while the other workers wait for the next step. Never the helper's own thread (it would
+wait on itself).
 """
 from __future__ import annotations
 
@@ -42,13 +43,14 @@ BLOCK_BYTES = 64 * 2 ** 20
 #: a point's (simulation output, the FMU's work for it, the error it raised)
 Result = tuple[Any, "float | None", "Exception | None"]
 Simulate = Callable[[np.ndarray, Plant], Any]
+_PREFIX = "hdrive-ahead"
 
 
 class _Helper:
     """The helper thread and its own FMU instance (made in that thread on first use, kept for the process)."""
 
     def __init__(self) -> None:
-        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hdrive-ahead")
+        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=_PREFIX)
         self.plant: Plant | None = None
 
     def plant_for(self, base: DriveParams) -> Plant:
@@ -66,7 +68,7 @@ def usable(samples: int, points: int) -> bool:
     """Whether running ``points`` simulations of ``samples`` samples ahead can save time here."""
     if MODE == "off" or CORES < 2 or points < 2 or samples < MIN_SAMPLES:
         return False
-    return threading.current_thread() is threading.main_thread() and (MODE == "on" or idle_core())
+    return not threading.current_thread().name.startswith(_PREFIX) and (MODE == "on" or idle_core())
 
 
 def block(samples: int, most: int = 32) -> int:
