@@ -172,9 +172,9 @@ def success(r: dict[str, Any]) -> bool:
 
 def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
     """Per class: logs, successes (``success``), named right / missed / false (``confident_false``: of them, named
-    without a doubt), confident names, wall time median and max, the screen's first-ranked candidate; the magnitude
-    errors where the shape is the library's, and how often their 95 % intervals hold the truth (``coverage``, for
-    confident and tentative names apart)."""
+    without a doubt), confident names, wall time median and max and where it went (``time_share``), the screen's
+    first-ranked candidate; the magnitude errors where the shape is the library's, and how often their 95 % intervals
+    hold the truth (``coverage``, for confident and tentative names apart)."""
     table = {}
     for cls in CLASSES:
         rs = [r for r in results if r["class"] == cls]
@@ -193,7 +193,7 @@ def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
                       "logs_with_confident_name": sum(bool(r["confident"]) for r in rs),
                       "logs_with_unexplained": sum(bool(r["unexplained"]) for r in rs),
                       "time_median_s": float(np.median(t)), "time_max_s": float(np.max(t)),
-                      "screen_first": firsts}
+                      "time_share": time_share(rs), "screen_first": firsts}
     mags = [m for r in results for m in r["magnitudes"] if m["rel_err"] is not None]
     return {"classes": table, "magnitudes": {
         "n": len(mags), "within_10pct": sum(m["rel_err"] <= 0.1 for m in mags),
@@ -201,6 +201,18 @@ def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
         "max_rel_err": float(np.max([m["rel_err"] for m in mags])) if mags else math.nan},
         "intervals": {kind: coverage([m for m in mags if m["tentative"] == (kind == "tentative")])
                       for kind in ("confident", "tentative")}}
+
+
+def time_share(rs: list[dict[str, Any]]) -> dict[str, float]:
+    """Where a class's time went: each kind of stage's share of the summed stage times (``Diagnosis.stage_s``; the
+    forward steps as one, "steps"), over the logs that report them."""
+    sums: dict[str, float] = {}
+    for r in rs:
+        for stage, sec in r.get("stage_s", {}).items():
+            key = "steps" if stage.startswith("step ") else stage
+            sums[key] = sums.get(key, 0.0) + sec
+    total = sum(sums.values())
+    return {k: v / total for k, v in sums.items()} if total > 0 else {}
 
 
 def interval_z(m: dict[str, Any]) -> float:
