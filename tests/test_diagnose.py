@@ -758,7 +758,8 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
     viscous load (1.02x / 1.018x the noise with a kinematic error after it); with Stribeck in the model the viscous
     load predicts the held-back data 1.043x better and the pair reaches 0.998x the noise. A replacement that gains no
     more than ``MIN_GAIN`` leaves the names as they were; the last name is never exchanged; the refit without a name
-    that backward elimination has just made is not made again."""
+    that backward elimination has just made is not made again; a model already within ``MIN_GAIN`` of the noise on
+    the held-back data is not exchanged."""
     from ident.diagnosis.engine import _departed, _refit_task, _Say, _Search, _without_task
     from ident.diagnosis.models import CandidateFit, Magnitude
     from ident.diagnosis.result import NamedEffect
@@ -772,7 +773,7 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
 
     class Plugin(_Recorded):
         def __init__(self, gain: float) -> None:
-            self.gain, self.dropped = gain, []
+            self.gain, self.dropped, self.over = gain, [], None
 
         def without(self, m: Fitted, name: str, budget: float | None) -> Fitted:
             self.dropped.append(name)
@@ -797,9 +798,8 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
         def converge(m: Fitted, budget: float | None) -> tuple[Fitted, str]:
             return m, ""
 
-        @staticmethod
-        def over_noise(m: Fitted) -> None:
-            return None
+        def over_noise(self, m: Fitted) -> tuple[float, float] | None:
+            return self.over
 
         @staticmethod
         def twin_of(m: Fitted, name: str) -> None:
@@ -848,6 +848,15 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
     assert search._backward(current) is current and plugin.dropped == ["hysteresis", "stribeck"]
     search._exchange(current)
     assert plugin.dropped == ["hysteresis", "stribeck", "viscous_load"], plugin.dropped
+
+    # a model that predicts the held-back data within MIN_GAIN of the noise is not exchanged (a replacement would
+    # have to predict below the noise), and the notes say so; at the measured 1.018x it is
+    for held, exchanged in ((1.003, False), (1.018, True)):
+        plugin, search, current = named_pair(1.043)
+        plugin.over = (1.0, held)
+        out = search._exchange(current)
+        assert (out is current) == (not exchanged) and bool(plugin.dropped) == exchanged, (held, plugin.dropped)
+        assert any(n.startswith("exchange: not run") and "1.003x" in n for n in search.notes) == (not exchanged)
 
 
 def test_each_step_may_replace_its_stalled_model_twice() -> None:
