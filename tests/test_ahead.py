@@ -18,6 +18,21 @@ from tests.ident_support import read_back
 from tests.reference.generator import identification_case
 
 
+def _jacobian_point(tmp_path):
+    """A 2 s default-design log (seed 4303), its base parameters and the base point of its output-error fit."""
+    log = read_back(identification_case(4303, "default", duration_s=2.0), tmp_path)
+    base = base_params(log)
+    return log, base, np.array([np.log(base.K_star), np.log(base.J_l_star), np.log(base.f_l_star), 0.0])
+
+
+def _jacobian(log, base, theta) -> np.ndarray:
+    problem = OutputError(log, base)
+    try:
+        return problem.jacobian(theta)
+    finally:
+        problem.close()
+
+
 @pytest.mark.parametrize("seed, kind", [(4301, "steps"), (4302, "chirp")])
 def test_identify_gives_the_same_fit_with_and_without_the_helper(seed, kind, tmp_path, monkeypatch) -> None:
     log = read_back(identification_case(seed, kind, duration_s=2.0), tmp_path)
@@ -36,9 +51,7 @@ def test_identify_gives_the_same_fit_with_and_without_the_helper(seed, kind, tmp
 def test_a_jacobian_and_a_budget_are_the_same_with_and_without_the_helper(tmp_path, monkeypatch) -> None:
     """The central-difference Jacobian (8 simulations) is equal to the last bit; a budget of 5.5 simulations runs out
     in its middle: the first five are charged and the sixth refused, whether the eight ran ahead or not."""
-    log = read_back(identification_case(4303, "default", duration_s=2.0), tmp_path)
-    base = base_params(log)
-    theta = np.array([np.log(base.K_star), np.log(base.J_l_star), np.log(base.f_l_star), 0.0])
+    log, base, theta = _jacobian_point(tmp_path)
     runs = {}
     for enabled in (False, True):
         monkeypatch.setattr(ahead, "MODE", "on" if enabled else "off")
@@ -61,27 +74,18 @@ def test_a_jacobian_and_a_budget_are_the_same_with_and_without_the_helper(tmp_pa
 def test_a_task_in_another_thread_uses_the_helper_with_the_same_answer(tmp_path, monkeypatch) -> None:
     """A Dask worker runs its tasks outside the main thread: a fit there uses the helper too (when a core is idle),
     with the Jacobian equal to the last bit."""
-    log = read_back(identification_case(4303, "default", duration_s=2.0), tmp_path)
-    base = base_params(log)
-    theta = np.array([np.log(base.K_star), np.log(base.J_l_star), np.log(base.f_l_star), 0.0])
+    log, base, theta = _jacobian_point(tmp_path)
     monkeypatch.setattr(ahead, "MODE", "on")
     out: dict[str, object] = {}
 
     def task() -> None:
-        problem = OutputError(log, base)
-        try:
-            before = ahead.helped()
-            out["jac"], out["helped"] = problem.jacobian(theta), ahead.helped() - before
-        finally:
-            problem.close()
+        before = ahead.helped()
+        out["jac"] = _jacobian(log, base, theta)
+        out["helped"] = ahead.helped() - before
 
     worker = threading.Thread(target=task, name="Dask-Worker-Threads'-1")
     worker.start()
     worker.join()
     assert out["helped"] > 0
     monkeypatch.setattr(ahead, "MODE", "off")
-    problem = OutputError(log, base)
-    try:
-        np.testing.assert_array_equal(out["jac"], problem.jacobian(theta))
-    finally:
-        problem.close()
+    np.testing.assert_array_equal(out["jac"], _jacobian(log, base, theta))

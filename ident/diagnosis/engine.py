@@ -930,7 +930,7 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
             named, unexplained, table, summary = _conclude(search, final)
     diag = Diagnosis(plugin.kind, search.steps, named, unexplained, table, notes=search.notes + plugin.notes(),
                      not_ruled_out=search.not_ruled_out, derivations=plugin.derivations(), summary=summary,
-                     budget=budget, constancy=search.constancy, stage_s=search.stage_s)
+                     budget=budget, constancy=search.constancy, stage_s=search.stage_s)   # the report's time joins it
     for line in summary:
         say(line)
     if out_dir is not None:
