@@ -708,7 +708,8 @@ def test_a_refit_that_removes_less_than_chance_leaves_its_candidate_not_ruled_ou
     of a step ended within 0.02 noise variances of its start and read as tested and rejected. Nor does a refit test
     its candidate whose better fit of the training part does not carry over to the held-back part (1.5x better
     there, 0.8x as good held back: measured on the independent two-effect log 7607, the hidden Stribeck's refit
-    at 7.7x the noise, 2.30x and 0.82x); one that fits the training part better by no more than ``MIN_GAIN`` does."""
+    at 7.7x the noise, 2.30x and 0.82x); one that fits the training part better by no more than ``MIN_GAIN`` does.
+    A candidate named at a later step is not listed as not ruled out (it would make every name tentative)."""
     from ident.diagnosis import CONFIDENT_OVER_NOISE
     from ident.diagnosis.engine import _Say, _Search
     from ident.diagnosis.models import CandidateFit
