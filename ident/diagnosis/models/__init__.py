@@ -182,6 +182,12 @@ class ModelPlugin(ABC):
         (``budget`` as ``refit``). None: no twin."""
         return None
 
+    def outside_rival(self, model: Fitted, names: list[str]) -> tuple[dict[str, float], str, str]:
+        """An effect outside the library fitted in place of each named effect of ``model``: ({name: its training
+        cost minus the named model's, in noise variances}, what the rival is, what a log needs to tell the two
+        apart). Default: none ({})."""
+        return {}, "", ""
+
     @abstractmethod
     def over_noise(self, model: Fitted) -> tuple[float, float] | None:
         """(training, held-back) residual RMS over the sensor noise, or None where the noise is not known."""

@@ -20,6 +20,8 @@
   an evaluation budget (whole training logs simulated; a size probe's costlier simulations count more).
 - **Converge**: an accepted model still above the noise is identified from scratch with its effects too (the base
   model's parameters may have bent to mimic the missing effect into a far basin); the better one is kept.
+- **Outside rival**: a ripple of the motor friction along its travel, fitted in place of each named effect at the
+  final model (``ripple``).
 """
 from __future__ import annotations
 
@@ -49,6 +51,7 @@ from ...model.params import DriveParams
 from .. import CONFIDENT_ALPHA, CONFIDENT_OVER_NOISE, MIN_GAIN, above_level
 from ..result import DiagnosisStep
 from ..screening import ScoreTest, best_of_grid, detection_limit, partial_out, quote_limits, score_test
+from . import ripple
 from . import two_inertia_report as report
 from . import CandidateFit, Fitted, Magnitude, ModelPlugin
 from .coordinates import (
@@ -556,6 +559,43 @@ class TwoInertiaPlugin(ModelPlugin):
         head[[4 + i for i, c in enumerate(_layout(model)) if c.effect == name]] = coordinates(
             rival, st.scales, st.sens.get(rival))[0].x_of(value)
         return self._fit_from(model, tuple(rival if e == name else e for e in model.effects), head, budget)
+
+    def outside_rival(self, model: Fitted, names: list[str]) -> tuple[dict[str, float], str, str]:
+        """A ripple of the motor friction in place of each named effect (``ripple``), linearized at ``model``."""
+        named = [n for n in names if n != FLEXIBILITY and _size_indices(model, n)]
+        if model.state.rigid or not named:
+            return {}, "", ""
+        model = self.resimulated(model)
+        st = model.state
+        problem = st.problem(self.full, model.effects, self.stop, self.sigma, general=True)
+        try:
+            rows = problem.load_rows()
+            r = problem.residuals(st.theta)[rows].copy()
+            J = problem.jacobian(st.theta)[rows]
+        finally:
+            problem.close()
+
+        def residuals_with(extra: np.ndarray) -> np.ndarray:
+            log = replace(self.full, motor_torque_Nm=self.full.motor_torque_Nm + extra)
+            p = st.problem(log, model.effects, self.stop, self.sigma, general=True)
+            try:
+                return p.residuals(st.theta)[rows].copy()
+            finally:
+                p.close()
+
+        H = ripple.columns(residuals_with, r, ripple.torques(st.sim["q_m"], st.sim["v_m"], st.params.f_m))
+        costs = {n: ripple.stand_in_cost(r, J, st.theta, _size_indices(model, n), H) for n in named}
+        what = (f"a ripple of the motor friction (its level varying along the motor's travel at "
+                f"{', '.join(map(str, ripple.HARMONICS))} per motor revolution; outside the library)")
+        return {n: c for n, c in costs.items() if c is not None}, what, self._ripple_advice(st.sim)
+
+    def _ripple_advice(self, sim: dict[str, np.ndarray]) -> str:
+        """What a log needs to tell a named effect from a friction ripple, with where this one's slides were."""
+        q, v = sim["q_m"][:self.stop], sim["v_m"][:self.stop]
+        where = [f"{np.mean(q[sel]):.3g} rad" if np.any(sel) else "none" for sel in (v > 0, v < 0)]
+        return (f"record slides in both directions over the same motor angles and over at least a motor turn (here "
+                f"the motor turned through {self.motor_span:.3g} rad; its forward slides at a mean angle of "
+                f"{where[0]}, its backward ones at {where[1]})")
 
     def _cov(self, model: Fitted) -> np.ndarray:
         """The unknowns' covariance as ``identify`` reports it (``larger_variances``: per parameter the larger of

@@ -1,0 +1,85 @@
+"""A friction ripple: the effect outside the library that every named effect of a two-inertia diagnosis is compared
+with.
+
+A harmonic drive's friction is not one level: it varies along the travel with the wave generator's angle (its cam
+deforms the flexspline in two lobes, so what rubs repeats twice per motor revolution, the kinematic error's 2/rev
+and its 4/rev harmonic, and a shaft's eccentricity repeats once). The library has no such effect, and a log can
+mistake one for a library effect. The default design shows how: its forward impulses start at one end of the motor's
+travel and its backward ones at the other, so a level that changes along the travel reads as a level that changes
+with the direction. Measured on an independent log (a 2/rev ripple of 5.3e-5 of the motor friction, over 0.089 rad
+of motor travel): asymmetric friction was named, confidently, and fitted the log to 1.011x the sensor noise.
+
+**The comparison** (``stand_in_cost``), linearized at the final model: the named effect's contribution (its size
+coordinates' Jacobian columns times their values) is taken out of the residual, and a ripple of the motor friction
+at ``HARMONICS`` per motor revolution (a sine and a cosine each, any amplitude and phase) is fitted in its place
+together with every other unknown, by linear least squares. Its training cost against the named model's (the same
+least squares with the effect's own columns) is the number the loop judges, as it judges a twin (``engine``).
+
+**The ripple's columns** (``torques``, ``columns``): a change of the motor's friction level acts on the motor as a
+torque against its motion while it slides. The FMU is simulated with the logged torque plus
+``-f_m sgn(v_m) h(q_m)`` over the samples where the model's own simulation has the motor sliding (``h`` one
+harmonic of the motor angle), and the difference from the model's residual is the column. The breakaway's static
+level is left out: a change of it moves a breakaway by a sample or less where the torque rises steeply (the
+impulses), and the sliding part is what sets how far a slide goes. Measured on the log above: the column of the
+FMU's own friction asymmetry and the one made this way from a constant torque -f_m over the slides share all but
+0.08 % of their square norm (the FMU's parameter also changes the load's friction and the breakaway
+levels).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ..screening import partial_out
+
+#: the ripple's harmonics per motor revolution: the wave generator's 2/rev and 4/rev (the kinematic error's own,
+#: ``coordinates.KINEMATIC_COORDS``) and a shaft's eccentricity, 1/rev
+HARMONICS = (1, 2, 4)
+#: the size of a column's difference: the load moves by about this many noise sigmas (RMS over the training part),
+#: as the screen's columns (``two_inertia.SCREEN_RESPONSE_SIGMA``): a linear response far above round-off
+RESPONSE_SIGMA = 1.0
+
+
+def torques(q_m: np.ndarray, v_m: np.ndarray, f_m: float) -> np.ndarray:
+    """The ripple's torques on the motor per unit relative amplitude, one column per sine and cosine of
+    ``HARMONICS`` [N.m]: ``-f_m sgn(v_m) h(q_m)`` where the motor slides (``v_m`` != 0), zero where it sticks."""
+    sliding = -f_m * np.sign(v_m)
+    return np.column_stack([sliding * fn(k * q_m) for k in HARMONICS for fn in (np.sin, np.cos)])
+
+
+def columns(residuals_with: Callable[[np.ndarray], np.ndarray], r: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """d(residual)/d(amplitude) of each column of ``tau`` (``torques``) by a one-sided difference:
+    ``residuals_with(extra torque)`` is the model's residual with that torque added to the logged one, ``r`` its
+    residual without. The step is rescaled (up to three times) until the load moves by about ``RESPONSE_SIGMA``."""
+    out = []
+    for j in range(tau.shape[1]):
+        h, col = 1.0, np.zeros_like(r)
+        for _ in range(3):
+            col = residuals_with(h * tau[:, j]) - r
+            size = float(np.sqrt(np.mean(col ** 2)))
+            if size == 0.0 or 0.3 <= size / RESPONSE_SIGMA <= 3.0:
+                break
+            h *= RESPONSE_SIGMA / size
+        out.append(col / h)
+    return np.column_stack(out)
+
+
+def stand_in_cost(r: np.ndarray, J: np.ndarray, theta: np.ndarray, own: list[int], H: np.ndarray) -> float | None:
+    """The training cost (in noise variances: ``r`` is weighed by the noise) of the ripple ``H`` in place of the
+    effect whose size coordinates are ``own`` (indices into ``theta`` and the columns of ``J``), minus the named
+    model's, both linearized at ``theta``. None: the effect contributes nothing there (its columns are zero: a
+    bound holds it)."""
+    own_signal = J[:, own] @ theta[own]
+    if not np.any(own_signal):
+        return None
+    others = [i for i in range(J.shape[1]) if i not in own]
+    named = _left(r, partial_out(J))
+    r0 = r - own_signal
+    ripple = _left(r0, partial_out(np.column_stack([J[:, others], H])))
+    return float(ripple @ ripple - named @ named)
+
+
+def _left(r: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """``r`` with the span of the orthonormal ``Q`` taken out (the least-squares fit's residual)."""
+    return r - Q @ (Q.T @ r)
