@@ -77,7 +77,8 @@ def generate(case: Case, duration_s: float | None, rate_hz: float | None) -> Any
         return generator.clean_case(case.seed, case.excitation, **kw)
     if case.cls == "two_effect":
         return generator.two_effect_case(case.seed, excitation=case.excitation, **kw)
-    return generator.outside_library_case(case.seed, case.effect, excitation=case.excitation, **kw)
+    return generator.outside_library_case(case.seed, case.effect, case.magnitude, excitation=case.excitation,
+                                          **kw)
 
 
 def load(case: Case, duration_s: float | None = None, rate_hz: float | None = None) -> tuple[Any, dict[str, Any]]:

@@ -717,7 +717,17 @@ def _outside_doubts(plugin: ModelPlugin, final: Fitted, names: list[str], notes:
     ones at the other, where a level that varies with the angle reads as one that varies with the direction. The
     ripple has more unknowns (six) than any effect it replaces: by chance alone it fits better by as many noise
     variances as it has extra unknowns (a chi-square's mean), inside ``SEPARABLE``; that is left uncounted, on the
-    doubt's side. A ripple better by ``SEPARABLE`` or more is said as what the log points to."""
+    doubt's side. A ripple better by ``SEPARABLE`` or more is said as what the log prefers. Not fitted where the
+    final model is above its noise level (its names are tentative already): the structure its residual keeps,
+    whatever made it, is partly fitted by the ripple's six free torques (measured on the independent generator's
+    actuator-lag logs, at 2-7x the noise: the ripple in place of a named stand-in fitted 3-4 million noise
+    variances better), and a comparison there says nothing about a ripple."""
+    if not names:
+        return {}
+    if above_level(plugin.over_noise(final), plugin.confident_levels()):
+        notes.append("outside rival: not fitted, the final model is above its noise level (its names are tentative "
+                     "already)")
+        return {}
     costs, what, advice = plugin.outside_rival(final, names)
     if costs:
         notes.append(f"outside rival: {what} in place of each named effect, linearized at the final model: "
@@ -730,7 +740,7 @@ def _outside_doubts(plugin: ModelPlugin, final: Fitted, names: list[str], notes:
         fit = "better" if delta < 0 else f"only {delta:.3g} noise variances worse"
         said = (f"{what} in its place fits the training data {fit} (cost change {delta:+.4g}, linearized at the final "
                 f"model; the acceptance rule's test detects {SEPARABLE:.3g} with 95 % power): ")
-        out[name] = said + (f"the log points to that ripple, and {name} may stand in for it" if delta <= -SEPARABLE
+        out[name] = said + (f"the log prefers that ripple, and {name} may stand in for it" if delta <= -SEPARABLE
                             else f"this log cannot tell {name} from that ripple; {advice}")
     return out
 
