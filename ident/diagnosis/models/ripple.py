@@ -65,15 +65,17 @@ def columns(residuals_with: Callable[[np.ndarray], np.ndarray], r: np.ndarray, t
     return np.column_stack(out)
 
 
-def stand_in_cost(r: np.ndarray, J: np.ndarray, theta: np.ndarray, own: list[int], H: np.ndarray) -> float | None:
-    """The training cost (in noise variances: ``r`` is weighed by the noise) of the ripple ``H`` in place of the
-    effect whose size coordinates are ``own`` (indices into ``theta`` and the columns of ``J``), minus the named
-    model's, both linearized at ``theta``. None: the effect contributes nothing there (its columns are zero: a
-    bound holds it)."""
+def stand_in_cost(r: np.ndarray, J: np.ndarray, theta: np.ndarray, own: list[int], effect: list[int],
+                  H: np.ndarray) -> float | None:
+    """The training cost (in noise variances: ``r`` is weighed by the noise) of the ripple ``H`` in place of an
+    effect, minus the named model's, both linearized at ``theta``. ``own``: the effect's size coordinates (indices
+    into ``theta`` and the columns of ``J``; zero is the effect off, so their columns times their values are its
+    contribution); ``effect``: all its coordinates (a Stribeck velocity too), none of which the ripple's model keeps.
+    None: the effect contributes nothing there (its columns are zero: a bound holds it)."""
     own_signal = J[:, own] @ theta[own]
     if not np.any(own_signal):
         return None
-    others = [i for i in range(J.shape[1]) if i not in own]
+    others = [i for i in range(J.shape[1]) if i not in effect]
     named = _left(r, partial_out(J))
     r0 = r - own_signal
     ripple = _left(r0, partial_out(np.column_stack([J[:, others], H])))

@@ -458,7 +458,7 @@ class TwoInertiaPlugin(ModelPlugin):
             K, sd = st.params.K_s, math.sqrt(max(cov[0, 0], 0.0))
             return Magnitude(K, (K * math.exp(-Z95 * sd), K * math.exp(Z95 * sd)), "N.m/rad", {"K_s": K})
         cov = self._cov(model)
-        idx = [4 + i for i, c in enumerate(_layout(model)) if c.effect == name]
+        idx = _effect_indices(model, name)
         coords = [c for c in _layout(model) if c.effect == name]
         x = st.theta[idx]
         values = {v.param: float(getattr(st.params, v.param)) for v in EFFECTS[name].fit_vars}
@@ -556,7 +556,7 @@ class TwoInertiaPlugin(ModelPlugin):
         rival, value = carried
         st = model.state
         head = st.theta.copy()
-        head[[4 + i for i, c in enumerate(_layout(model)) if c.effect == name]] = coordinates(
+        head[_effect_indices(model, name)] = coordinates(
             rival, st.scales, st.sens.get(rival))[0].x_of(value)
         return self._fit_from(model, tuple(rival if e == name else e for e in model.effects), head, budget)
 
@@ -584,7 +584,8 @@ class TwoInertiaPlugin(ModelPlugin):
                 p.close()
 
         H = ripple.columns(residuals_with, r, ripple.torques(st.sim["q_m"], st.sim["v_m"], st.params.f_m))
-        costs = {n: ripple.stand_in_cost(r, J, st.theta, _size_indices(model, n), H) for n in named}
+        costs = {n: ripple.stand_in_cost(r, J, st.theta, _size_indices(model, n), _effect_indices(model, n), H)
+                 for n in named}
         what = (f"a ripple of the motor friction (its level varying along the motor's travel at "
                 f"{', '.join(map(str, ripple.HARMONICS))} per motor revolution; outside the library)")
         return {n: c for n, c in costs.items() if c is not None}, what, self._ripple_advice(st.sim)
@@ -768,6 +769,11 @@ def _carried(model: Fitted, name: str) -> tuple[str, float] | None:
         return None
     rival, own_param, _, power = TWINS[name]
     return rival, float(getattr(model.state.params, own_param)) * model.state.params.r ** power
+
+
+def _effect_indices(model: Fitted, name: str) -> list[int]:
+    """Indices in the unknowns of all of effect ``name``'s coordinates."""
+    return [4 + i for i, c in enumerate(_layout(model)) if c.effect == name]
 
 
 def _size_indices(model: Fitted, name: str) -> list[int]:
