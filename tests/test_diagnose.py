@@ -1,17 +1,17 @@
 """The discrepancy loop on logs it did not make (issue 16).
 
-Every log here comes from the independent generator (``tests/reference/generator``: its own hybrid integrator,
-no code shared with the FMU or ``ident``), in the product's file format, read by ``ident.read_log``; the seeds
-(5501-5507) appear nowhere in the product. The default run keeps short logs (3 s at 5 kHz): a clean log (nothing
+Every log here comes from the independent generator (``tests/reference/generator``: its own hybrid integrator, no
+code shared with the FMU or ``ident``), in the product's file format, read by ``ident.read_log``; the seeds
+(5501-5514) appear nowhere in the product. The default run keeps short logs (3 s at 5 kHz): a clean log (nothing
 named, every candidate rejected by the screen with its statistic), a hidden hardening of the library's shape (named,
 confident, magnitude within 10 %, its parameters holding between the halves of the log), the same answer serially
 and on two workers, a budget too small to fit it (not named confidently: the candidate is not ruled out), a
 kinematic error with its 4/rev over turns of the motor (named alone, both harmonics within 5 %), the rigid start
 (flexibility passes the same acceptance rule), the command line (JSON on stdout, progress on stderr, the fitted
-FMU), Ctrl-C (stops within 2 s with workers running), the loop's rules with stand-in plug-ins, and the statistics
-of the screen and the acceptance rule against closed forms. Slow (marked; run with ``-m slow`` and in
-``bench/``): the randomized matrix of the issue (166 logs, ``test_matrix`` and ``bench/diagnose.py``) and the
-constancy check on two 10 s logs.
+FMU), Ctrl-C (stops within 2 s with workers running), a friction ripple outside the library fitted in place of a
+named effect, the loop's rules with stand-in plug-ins, and the statistics of the screen and the acceptance rule
+against closed forms. Slow (marked; run with ``-m slow`` and in ``bench/``): the randomized matrix of the issue (166
+logs, ``test_matrix`` and ``bench/diagnose.py``) and the constancy check on two 10 s logs.
 """
 from __future__ import annotations
 
