@@ -9,7 +9,7 @@ travel and its backward ones at the other, so a level that changes along the tra
 with the direction. Measured on an independent log (a 2/rev ripple of 5.3e-5 of the motor friction, over 0.089 rad
 of motor travel): asymmetric friction was named, confidently, and fitted the log to 1.011x the sensor noise.
 
-**The comparison** (``stand_in_cost``), linearized at the final model: the named effect's contribution (its size
+**The comparison** (``stand_in_costs``), linearized at the final model: the named effect's contribution (its size
 coordinates' Jacobian columns times their values) is taken out of the residual, and a ripple of the motor friction
 at ``HARMONICS`` per motor revolution (a sine and a cosine each, any amplitude and phase) is fitted in its place
 together with every other unknown, by linear least squares. Its training cost against the named model's (the same
@@ -32,13 +32,11 @@ from collections.abc import Callable
 import numpy as np
 
 from ..screening import partial_out
+from .problem import one_sided_column
 
 #: the ripple's harmonics per motor revolution: the wave generator's 2/rev and 4/rev (the kinematic error's own,
 #: ``coordinates.KINEMATIC_COORDS``) and a shaft's eccentricity, 1/rev
 HARMONICS = (1, 2, 4)
-#: the size of a column's difference: the load moves by about this many noise sigmas (RMS over the training part),
-#: as the screen's columns (``two_inertia.SCREEN_RESPONSE_SIGMA``): a linear response far above round-off
-RESPONSE_SIGMA = 1.0
 
 
 def torques(q_m: np.ndarray, v_m: np.ndarray, f_m: float) -> np.ndarray:
@@ -48,38 +46,33 @@ def torques(q_m: np.ndarray, v_m: np.ndarray, f_m: float) -> np.ndarray:
     return np.column_stack([sliding * fn(k * q_m) for k in HARMONICS for fn in (np.sin, np.cos)])
 
 
-def columns(residuals_with: Callable[[np.ndarray], np.ndarray], r: np.ndarray, tau: np.ndarray) -> np.ndarray:
-    """d(residual)/d(amplitude) of each column of ``tau`` (``torques``) by a one-sided difference:
-    ``residuals_with(extra torque)`` is the model's residual with that torque added to the logged one, ``r`` its
-    residual without. The step is rescaled (up to three times) until the load moves by about ``RESPONSE_SIGMA``."""
-    out = []
-    for j in range(tau.shape[1]):
-        h, col = 1.0, np.zeros_like(r)
-        for _ in range(3):
-            col = residuals_with(h * tau[:, j]) - r
-            size = float(np.sqrt(np.mean(col ** 2)))
-            if size == 0.0 or 0.3 <= size / RESPONSE_SIGMA <= 3.0:
-                break
-            h *= RESPONSE_SIGMA / size
-        out.append(col / h)
-    return np.column_stack(out)
+def columns(residuals_with: Callable[[np.ndarray], np.ndarray], r: np.ndarray, tau: np.ndarray,
+            target: float) -> np.ndarray:
+    """d(residual)/d(amplitude) of each column of ``tau`` (``torques``) by a one-sided difference
+    (``problem.one_sided_column``: the load moves by about ``target`` noise sigmas): ``residuals_with(extra
+    torque)`` is the model's residual with that torque added to the logged one, ``r`` its residual without."""
+    def column(t: np.ndarray) -> np.ndarray:
+        return one_sided_column(lambda h: residuals_with(h * t), r, 1.0, target)
+    return np.column_stack([column(tau[:, j]) for j in range(tau.shape[1])])
 
 
-def stand_in_cost(r: np.ndarray, J: np.ndarray, theta: np.ndarray, own: list[int], effect: list[int],
-                  H: np.ndarray) -> float | None:
-    """The training cost (in noise variances: ``r`` is weighed by the noise) of the ripple ``H`` in place of an
-    effect, minus the named model's, both linearized at ``theta``. ``own``: the effect's size coordinates (indices
-    into ``theta`` and the columns of ``J``; zero is the effect off, so their columns times their values are its
-    contribution); ``effect``: all its coordinates (a Stribeck velocity too), none of which the ripple's model keeps.
-    None: the effect contributes nothing there (its columns are zero: a bound holds it)."""
-    own_signal = J[:, own] @ theta[own]
-    if not np.any(own_signal):
-        return None
-    others = [i for i in range(J.shape[1]) if i not in effect]
+def stand_in_costs(r: np.ndarray, J: np.ndarray, theta: np.ndarray, effects: dict[str, tuple[list[int], list[int]]],
+                   H: np.ndarray) -> dict[str, float]:
+    """The training cost (in noise variances: ``r`` is weighed by the noise) of the ripple ``H`` in place of each
+    effect, minus the named model's, both linearized at ``theta``. ``effects``: name -> (its size coordinates,
+    indices into ``theta`` and the columns of ``J``: zero is the effect off, so their columns times their values
+    are its contribution; all its coordinates, a Stribeck velocity too, none of which the ripple's model keeps).
+    An effect that contributes nothing there (its columns are zero: a bound holds it) is left out."""
     named = _left(r, partial_out(J))
-    r0 = r - own_signal
-    ripple = _left(r0, partial_out(np.column_stack([J[:, others], H])))
-    return float(ripple @ ripple - named @ named)
+    out = {}
+    for name, (own, effect) in effects.items():
+        own_signal = J[:, own] @ theta[own]
+        if not np.any(own_signal):
+            continue
+        others = [i for i in range(J.shape[1]) if i not in effect]
+        ripple = _left(r - own_signal, partial_out(np.column_stack([J[:, others], H])))
+        out[name] = float(ripple @ ripple - named @ named)
+    return out
 
 
 def _left(r: np.ndarray, Q: np.ndarray) -> np.ndarray:

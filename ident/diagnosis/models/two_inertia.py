@@ -65,7 +65,7 @@ from .coordinates import (
     magnitude_of,
     record_advice,
 )
-from .problem import ModelProblem, Sensitivity, rms, simulate_full
+from .problem import ModelProblem, Sensitivity, one_sided_column, rms, simulate_full
 
 HOLDBACK_FRACTION = 0.3
 #: IPOPT iterations of a drop / backward refit (a candidate's refit runs until its budget is spent)
@@ -271,14 +271,8 @@ class TwoInertiaPlugin(ModelPlugin):
     def _column(self, model: Fitted, name: str, coord: str, point: dict[str, float], r: np.ndarray) -> np.ndarray:
         """d(load residual)/dx of coordinate ``coord`` of effect ``name`` at 0 (the other coordinates at
         ``point``), by a one-sided difference whose size makes the load move by ~SCREEN_RESPONSE_SIGMA."""
-        h = 1e-5
-        for _ in range(3):
-            col = self._difference(model, name, {**point, coord: h}) - r
-            size = rms(col)
-            if size == 0.0 or 0.3 <= size / SCREEN_RESPONSE_SIGMA <= 3.0:
-                break
-            h *= SCREEN_RESPONSE_SIGMA / size
-        return col / h
+        return one_sided_column(lambda h: self._difference(model, name, {**point, coord: h}), r, 1e-5,
+                                SCREEN_RESPONSE_SIGMA)
 
     def _difference(self, model: Fitted, name: str, x: dict[str, float]) -> np.ndarray:
         """Load residuals of ``model`` with effect ``name`` held at coordinates ``x`` (through the same
@@ -583,12 +577,13 @@ class TwoInertiaPlugin(ModelPlugin):
             finally:
                 p.close()
 
-        H = ripple.columns(residuals_with, r, ripple.torques(st.sim["q_m"], st.sim["v_m"], st.params.f_m))
-        costs = {n: ripple.stand_in_cost(r, J, st.theta, _size_indices(model, n), _effect_indices(model, n), H)
-                 for n in named}
+        H = ripple.columns(residuals_with, r, ripple.torques(st.sim["q_m"], st.sim["v_m"], st.params.f_m),
+                           SCREEN_RESPONSE_SIGMA)
+        costs = ripple.stand_in_costs(r, J, st.theta, {n: (_size_indices(model, n), _effect_indices(model, n))
+                                                       for n in named}, H)
         what = (f"a ripple of the motor friction (its level varying along the motor's travel at "
                 f"{', '.join(map(str, ripple.HARMONICS))} per motor revolution; outside the library)")
-        return {n: c for n, c in costs.items() if c is not None}, what, self._ripple_advice(st.sim)
+        return costs, what, self._ripple_advice(st.sim)
 
     def _ripple_advice(self, sim: dict[str, np.ndarray]) -> str:
         """What a log needs to tell a named effect from a friction ripple, with where this one's slides were."""
