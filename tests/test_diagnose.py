@@ -771,7 +771,7 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
     load predicts the held-back data 1.043x better and the pair reaches 0.998x the noise. A replacement that gains no
     more than ``MIN_GAIN`` leaves the names as they were; the last name is never exchanged; the refit without a name
     that backward elimination has just made is not made again; a model already within ``MIN_GAIN`` of the noise on
-    the held-back data is not exchanged."""
+    the held-back data is not exchanged; the replacements are free refits, not searched along their sizes."""
     from ident.diagnosis.engine import _departed, _refit_task, _Say, _Search, _without_task
     from ident.diagnosis.models import CandidateFit, Magnitude
     from ident.diagnosis.result import NamedEffect
@@ -828,8 +828,8 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
                 progress: bool = False) -> list[object]:
             if fn is _without_task:
                 return [self.plugin.without(m, name, b) for _, m, name, b in tasks]
-            assert fn is _refit_task
-            return [self.plugin.refit(m, t, b) for _, m, t, b in tasks]
+            assert fn is _refit_task and not any(search for *_, search in tasks)
+            return [self.plugin.refit(m, t, b) for _, m, t, b, _ in tasks]
 
     def named_pair(gain: float) -> tuple[Plugin, _Search, Fitted]:
         """A search that has named hysteresis, then Stribeck; its final model."""
@@ -1419,6 +1419,7 @@ def test_a_candidates_next_refit_carries_where_its_last_refit_ended() -> None:
     search._refits(current, tests, "step 0")
     search._refits(current, tests, "step 1")
     assert [task[2].carried for task in pool.tasks] == [{}, {}, {"viscous_motor size": 900.0}, {}]
+    assert all(task[4] for task in pool.tasks)   # a step's candidates are searched along their sizes
     assert not tests[0].carried
 
 

@@ -33,8 +33,9 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    whose removal does not worsen the held-back prediction significantly only stood in for later ones, and goes.
    Then **exchange**: each named effect but the last was chosen against a model still missing the effects named
    after it, where a stand-in can fit best; the final model without it is refitted, the candidates that pass the
-   screen there are refitted from it, and the best takes its place when it passes the acceptance rule against the
-   final model (then backward elimination again); not when the final model predicts the held-back data within
+   screen there are refitted from it (free refits, not searched along their sizes: ``_exchanged``), and the best
+   takes its place when it passes the acceptance rule against the final model (then backward elimination again);
+   not when the final model predicts the held-back data within
    ``MIN_GAIN`` of the noise already (no replacement could pass the rule there but by chance). Measured on a
    two-effect log of the independent generator (viscous load and an exponential Stribeck): hysteresis was named first
    and kept, with Stribeck and a kinematic error after it, at 1.02x / 1.018x the noise (training / held back);
@@ -170,11 +171,13 @@ class _Say:
 
 
 def _refit_task(args: tuple) -> CandidateFit:
-    """One candidate's refit (a top-level function, for the workers); its failure is reported, not fatal."""
-    plugin, model, test, budget = args
+    """One candidate's refit (a top-level function, for the workers), searched along its size when ``search``; its
+    failure is reported, not fatal."""
+    plugin, model, test, budget, search = args
     try:
         out = plugin.refit(model, test, budget)
-        out = search_candidate(plugin, out, budget, MIN_GAIN)
+        if search:
+            out = search_candidate(plugin, out, budget, MIN_GAIN)
     except Exception as exc:  # noqa: BLE001 - the candidate is listed with its error, the diagnosis goes on
         out = CandidateFit(test.candidate, error=f"{type(exc).__name__}: {exc}")
     if out.model is not None:
@@ -380,11 +383,11 @@ class _Search:
             return None
         return self._accept(current, winner, fits, k)
 
-    def _refits(self, model: Fitted, passing: list[ScoreTest], desc: str) -> list[CandidateFit]:
-        """Each candidate of ``passing`` refitted at ``model`` on the workers (``_refit_task``), the costliest
-        started first (``plugin.refit_cost``); in ``passing``'s order."""
+    def _refits(self, model: Fitted, passing: list[ScoreTest], desc: str, search: bool = True) -> list[CandidateFit]:
+        """Each candidate of ``passing`` refitted at ``model`` on the workers (``_refit_task``; searched along its
+        size when ``search``), the costliest started first (``plugin.refit_cost``); in ``passing``'s order."""
         tests = [replace(t, carried=self.carried.get(t.candidate, {})) for t in passing]
-        fits = self._map(_refit_task, [(self.shared, model, t, self.budget) for t in tests], desc,
+        fits = self._map(_refit_task, [(self.shared, model, t, self.budget, search) for t in tests], desc,
                          cost=[self.plugin.refit_cost(t.candidate) for t in passing])
         for f in fits:   # where a later refit that stalls starts again (``ScoreTest.carried``)
             if f.model is not None and f.model.train_cost < model.train_cost:
@@ -569,13 +572,24 @@ class _Search:
         """``current`` with ``name`` exchanged for the best candidate at the model without it, or None (no candidate
         passes the screen there, none could be fitted within its budget, or the best does not pass the rule). A
         refit that uses up its budget here is passed over, not listed as not ruled out: the forward steps judged every
-        candidate already, and this stage only looks for a better fit than the final model."""
+        candidate already, and this stage only looks for a better fit than the final model.
+
+        The refits are not searched along their sizes (``sizes.search_candidate``), unlike a step's: a step must rank
+        its candidates against each other, and a stalled refit would lose to a rival it should beat and hand the name
+        to the wrong effect; here a stalled refit only leaves the final model in place, each of whose names passed
+        the rule at its own step and backward elimination since. And the search is costliest here: the model
+        without a name that does fit is far from the log, and so are its candidates, whose searches walk many rounds
+        of probes, each a refit of the whole model. Measured on the independent generator's two-effect log 5309
+        (asymmetric friction and hysteresis named, 1.005x / 1.032x the noise): the model without asymmetric friction
+        fitted the training part 111x worse than the final model; its five candidates' searches (16, 10, 2, 8 and 16
+        probes) took 192 s of the exchange's 206 s (in one process) and lowered their training costs 1.0-2.1x, to 44-64x the final
+        model's."""
         self.say(f"exchange: refitting the final model without {name} and its candidates there ...")
         reduced = self.plugin.resimulated(self._without(current, name))
         names = tuple(c for c in self.plugin.candidates(reduced) if c != name)
         tests = ranked(self.plugin.screen(reduced, names))
         passing = [t for t in tests if t.passed]
-        fits = self._refits(reduced, passing, f"exchanging {name}")
+        fits = self._refits(reduced, passing, f"exchanging {name}", search=False)
         ok = sorted((f for f in fits if f.model is not None and not f.exhausted), key=lambda f: f.model.held_cost)
         if not ok or self._judge(current, ok[0], {}, want_drop=False)[0]:   # the loop's one acceptance rule
             return None
