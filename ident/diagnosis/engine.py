@@ -35,11 +35,10 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    after it, where a stand-in can fit best; the final model without it is refitted, the candidates that pass the
    screen there are refitted from it (free refits, not searched along their sizes: ``_exchanged``), and the best
    takes its place when it passes the acceptance rule against the final model (then backward elimination again);
-   not when the final model predicts the held-back data within
-   ``MIN_GAIN`` of the noise already (no replacement could pass the rule there but by chance). Measured on a
-   two-effect log of the independent generator (viscous load and an exponential Stribeck): hysteresis was named first
-   and kept, with Stribeck and a kinematic error after it, at 1.02x / 1.018x the noise (training / held back);
-   viscous load with Stribeck reaches 0.9985x / 0.9977x.
+   not when the final model predicts the held-back data within ``MIN_GAIN`` of the noise already (no replacement
+   could pass the rule there but by chance). Measured on a two-effect log of the independent generator (viscous load
+   and an exponential Stribeck): hysteresis was named first and kept, with Stribeck and a kinematic error after it,
+   at 1.02x / 1.018x the noise (training / held back); viscous load with Stribeck reaches 0.9985x / 0.9977x.
 7. **Say how sure**: a named effect is tentative when the final model leaves the sensor's residual above its level
    times its noise (``plugin.confident_levels``: what a model reproducing its log exceeds by chance with probability
    ``CONFIDENT_ALPHA``, at most ``CONFIDENT_OVER_NOISE``; a shape the library does not have, or an effect outside it),
@@ -582,8 +581,8 @@ class _Search:
         of probes, each a refit of the whole model. Measured on the independent generator's two-effect log 5309
         (asymmetric friction and hysteresis named, 1.005x / 1.032x the noise): the model without asymmetric friction
         fitted the training part 111x worse than the final model; its five candidates' searches (16, 10, 2, 8 and 16
-        probes) took 192 s of the exchange's 206 s (in one process) and lowered their training costs 1.0-2.1x, to 44-64x the final
-        model's."""
+        probes) took 192 s of the exchange's 206 s (in one process) and lowered their training costs 1.0-2.1x, to
+        44-64x the final model's."""
         self.say(f"exchange: refitting the final model without {name} and its candidates there ...")
         reduced = self.plugin.resimulated(self._without(current, name))
         names = tuple(c for c in self.plugin.candidates(reduced) if c != name)
