@@ -641,8 +641,20 @@ class Terminated(BaseException):
     workers are cleaned up) before the process exits with 143."""
 
 
+#: SIGTERMs received (``_on_sigterm``): a C library that runs Python code can swallow the exception the handler
+#: raises and report a failure of its own instead (seen once in CI: fmpy's XML schema check, signalled while it read
+#: the FMU, said "Document is not valid XML Schema"); ``run`` then still exits as terminated
+_TERMS: list[int] = []
+
+
 def _on_sigterm(signum: int, frame: Any) -> None:
+    _TERMS.append(signum)
     raise Terminated()
+
+
+def _terminated(say: Any) -> tuple[int, None]:
+    say("terminated (SIGTERM); no output was left half-written")
+    return 143, None
 
 
 def preflight(args: argparse.Namespace) -> None:
@@ -690,14 +702,17 @@ def run(args: argparse.Namespace) -> tuple[int, Any]:
         say("interrupted (Ctrl-C); no output was left half-written")
         return 130, None
     except Terminated:
-        say("terminated (SIGTERM); no output was left half-written")
-        return 143, None
+        return _terminated(say)
     except (ParameterError, LogError, OutputDirError, BatchError, ValueError, ThresholdNotFound, NoConsistentStep,
             SettleError, RuntimeError, OSError) as exc:
+        if _TERMS:   # the failure is the signal's, whose exception a C library turned into its own
+            return _terminated(say)
         say(f"error: {exc}")
         checks = getattr(exc, "checks", None)  # a failed data check: every check's result, for --json
         return EXIT_BAD_INPUT, ({"error": str(exc), "data_checks": checks} if checks is not None else None)
     except Exception as exc:  # a bug, not bad input
+        if _TERMS:
+            return _terminated(say)
         if os.environ.get("HDRIVE_TRACEBACK"):
             raise
         say(f"internal error: {type(exc).__name__}: {exc} (please report it; HDRIVE_TRACEBACK=1 shows where)")
@@ -708,6 +723,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     import signal
 
     args = build_parser().parse_args(argv)
+    _TERMS.clear()   # a SIGTERM of an earlier call in this process is not this one's
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         with one_blas_thread():

@@ -140,6 +140,32 @@ def test_workers_at_work_are_not_taken_for_lost(monkeypatch) -> None:
         assert batch.run_batch(_sleep_then_triple, [2.0], workers=1) == [6.0]
 
 
+def test_a_sigterm_that_a_c_library_turned_into_its_own_error_still_exits_as_terminated(monkeypatch, capsys) -> None:
+    """``cli.run``: the SIGTERM handler's exception, swallowed by C code that reports a failure of its own instead
+    (seen once in CI: fmpy's XML schema check, signalled while it read the FMU, said "Document is not valid XML
+    Schema", and the sweep exited 2 with that error), still ends the command as terminated, 143 and one line. A
+    failure with no SIGTERM behind it stays a named error (2)."""
+    import argparse
+
+    from ident import cli
+
+    def swallowed(args: argparse.Namespace) -> None:
+        try:
+            cli._on_sigterm(signal.SIGTERM, None)
+        except cli.Terminated:
+            raise RuntimeError("Document is not valid XML Schema") from None
+
+    def failing(args: argparse.Namespace) -> None:
+        raise RuntimeError("Document is not valid XML Schema")
+
+    monkeypatch.setattr(cli, "preflight", lambda args: None)
+    monkeypatch.setattr(cli, "_TERMS", [])
+    assert cli.run(argparse.Namespace(command="sweep", func=failing)) == (2, None)
+    assert capsys.readouterr().err.strip() == "hdrive sweep: error: Document is not valid XML Schema"
+    assert cli.run(argparse.Namespace(command="sweep", func=swallowed)) == (143, None)
+    assert capsys.readouterr().err.strip() == "hdrive sweep: terminated (SIGTERM); no output was left half-written"
+
+
 @pytest.mark.parametrize("sig, code, word", [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")])
 def test_interrupting_a_sweep_leaves_nothing_behind(tmp_path, sig, code, word) -> None:
     """Ctrl-C / SIGTERM during a sweep (compiled protocol loops on Dask threads in the process): exit 130 / 143 with
