@@ -641,18 +641,31 @@ class Terminated(BaseException):
     workers are cleaned up) before the process exits with 143."""
 
 
-#: SIGTERMs received (``_on_sigterm``): a C library that runs Python code can swallow the exception the handler
-#: raises and report a failure of its own instead (seen once in CI: fmpy's XML schema check, signalled while it read
-#: the FMU, said "Document is not valid XML Schema"); ``run`` then still exits as terminated
-_TERMS: list[int] = []
+#: the stopping signals received (``_on_signal``): a C library that runs Python code can swallow the exception the
+#: handler raises and report a failure of its own instead (seen once in CI: fmpy's XML schema check, signalled while
+#: it read the FMU, said "Document is not valid XML Schema"); ``run`` then still exits as stopped by the last one
+_SIGNALS: list[int] = []
 
 
-def _on_sigterm(signum: int, frame: Any) -> None:
-    _TERMS.append(signum)
+def _on_signal(signum: int, frame: Any) -> None:
+    """SIGTERM raises ``Terminated``, Ctrl-C (SIGINT) ``KeyboardInterrupt`` as Python's own handler does; both are
+    recorded first (``_SIGNALS``)."""
+    import signal
+
+    _SIGNALS.append(signum)
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
     raise Terminated()
 
 
-def _terminated(say: Any) -> tuple[int, None]:
+def _stopped(say: Any, signum: int | None = None) -> tuple[int, None]:
+    """The exit of a command a signal stopped (``signum``, default the last one recorded): 130 after Ctrl-C, 143
+    after SIGTERM, with one line."""
+    import signal
+
+    if (signum if signum is not None else _SIGNALS[-1]) == signal.SIGINT:
+        say("interrupted (Ctrl-C); no output was left half-written")
+        return 130, None
     say("terminated (SIGTERM); no output was left half-written")
     return 143, None
 
@@ -688,6 +701,7 @@ def run(args: argparse.Namespace) -> tuple[int, Any]:
     log (identify, predict), 2 for bad input or a named failure, 130 / 143 when interrupted, 1 for an internal error
     (a bug: its traceback only with HDRIVE_TRACEBACK=1)."""
     import os
+    import signal
 
     from .common.output import OutputDirError
     from .fitting.logs import LogError
@@ -699,20 +713,19 @@ def run(args: argparse.Namespace) -> tuple[int, Any]:
         result = args.func(args)
         return getattr(args, "exit_code", 0), result
     except KeyboardInterrupt:
-        say("interrupted (Ctrl-C); no output was left half-written")
-        return 130, None
+        return _stopped(say, signal.SIGINT)
     except Terminated:
-        return _terminated(say)
+        return _stopped(say, signal.SIGTERM)
     except (ParameterError, LogError, OutputDirError, BatchError, ValueError, ThresholdNotFound, NoConsistentStep,
             SettleError, RuntimeError, OSError) as exc:
-        if _TERMS:   # the failure is the signal's, whose exception a C library turned into its own
-            return _terminated(say)
+        if _SIGNALS:   # the failure is the signal's, whose exception a C library turned into its own
+            return _stopped(say)
         say(f"error: {exc}")
         checks = getattr(exc, "checks", None)  # a failed data check: every check's result, for --json
         return EXIT_BAD_INPUT, ({"error": str(exc), "data_checks": checks} if checks is not None else None)
     except Exception as exc:  # a bug, not bad input
-        if _TERMS:
-            return _terminated(say)
+        if _SIGNALS:
+            return _stopped(say)
         if os.environ.get("HDRIVE_TRACEBACK"):
             raise
         say(f"internal error: {type(exc).__name__}: {exc} (please report it; HDRIVE_TRACEBACK=1 shows where)")
@@ -723,13 +736,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     import signal
 
     args = build_parser().parse_args(argv)
-    _TERMS.clear()   # a SIGTERM of an earlier call in this process is not this one's
-    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    _SIGNALS.clear()   # a signal of an earlier call in this process is not this one's
+    # Ctrl-C only where Python's own handler is in place: a SIGINT the process ignores (started in the background)
+    # stays ignored
+    ours = [signal.SIGTERM] + ([signal.SIGINT] if signal.getsignal(signal.SIGINT) is signal.default_int_handler
+                               else [])
+    previous = {sig: signal.signal(sig, _on_signal) for sig in ours}
     try:
         with one_blas_thread():
             code, result = run(args)
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     if result is not None and args.json:
         from .common.units import plain_json, si_keys
 

@@ -140,30 +140,63 @@ def test_workers_at_work_are_not_taken_for_lost(monkeypatch) -> None:
         assert batch.run_batch(_sleep_then_triple, [2.0], workers=1) == [6.0]
 
 
-def test_a_sigterm_that_a_c_library_turned_into_its_own_error_still_exits_as_terminated(monkeypatch, capsys) -> None:
-    """``cli.run``: the SIGTERM handler's exception, swallowed by C code that reports a failure of its own instead
-    (seen once in CI: fmpy's XML schema check, signalled while it read the FMU, said "Document is not valid XML
-    Schema", and the sweep exited 2 with that error), still ends the command as terminated, 143 and one line. A
-    failure with no SIGTERM behind it stays a named error (2)."""
+@pytest.mark.parametrize("sig, code, line", [
+    (signal.SIGTERM, 143, "terminated (SIGTERM)"), (signal.SIGINT, 130, "interrupted (Ctrl-C)")])
+def test_a_signal_that_a_c_library_turned_into_its_own_error_still_exits_as_stopped(monkeypatch, capsys, sig, code,
+                                                                                     line) -> None:
+    """``cli.run``: the signal handler's exception (SIGTERM's ``Terminated``, Ctrl-C's KeyboardInterrupt), swallowed
+    by C code that reports a failure of its own instead (seen once in CI: fmpy's XML schema check, signalled while it
+    read the FMU, said "Document is not valid XML Schema", and the sweep exited 2 with that error), still ends the
+    command as stopped by that signal, with its code and one line. A failure with no signal behind it stays a named
+    error (2)."""
     import argparse
 
     from ident import cli
 
     def swallowed(args: argparse.Namespace) -> None:
         try:
-            cli._on_sigterm(signal.SIGTERM, None)
-        except cli.Terminated:
+            cli._on_signal(sig, None)
+        except (cli.Terminated, KeyboardInterrupt):
             raise RuntimeError("Document is not valid XML Schema") from None
 
     def failing(args: argparse.Namespace) -> None:
         raise RuntimeError("Document is not valid XML Schema")
 
     monkeypatch.setattr(cli, "preflight", lambda args: None)
-    monkeypatch.setattr(cli, "_TERMS", [])
+    monkeypatch.setattr(cli, "_SIGNALS", [])
     assert cli.run(argparse.Namespace(command="sweep", func=failing)) == (2, None)
     assert capsys.readouterr().err.strip() == "hdrive sweep: error: Document is not valid XML Schema"
-    assert cli.run(argparse.Namespace(command="sweep", func=swallowed)) == (143, None)
-    assert capsys.readouterr().err.strip() == "hdrive sweep: terminated (SIGTERM); no output was left half-written"
+    assert cli.run(argparse.Namespace(command="sweep", func=swallowed)) == (code, None)
+    assert capsys.readouterr().err.strip() == f"hdrive sweep: {line}; no output was left half-written"
+
+
+def test_the_command_line_leaves_an_ignored_ctrl_c_ignored() -> None:
+    """``cli.main`` takes Ctrl-C over only from Python's own handler: a command started in the background, where the
+    shell has SIGINT ignored, must keep ignoring it; and every handler is given back when the command returns."""
+    from ident import cli
+
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        seen = []
+        real = cli.run
+
+        def spy(args):
+            seen.append((signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)))
+            return 0, None
+
+        cli.run = spy
+        try:
+            assert cli.main(["build-fmu", "--out", "unused"]) == 0
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+            assert cli.main(["build-fmu", "--out", "unused"]) == 0
+        finally:
+            cli.run = real
+        assert seen == [(signal.SIG_IGN, cli._on_signal), (cli._on_signal, cli._on_signal)]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        for s, h in before.items():
+            signal.signal(s, h)
 
 
 @pytest.mark.parametrize("sig, code, word", [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")])
