@@ -100,6 +100,28 @@ def test_screen_bounded_parameters_and_grids():
     assert not t.passed and t.p_value == pytest.approx(stats.chi2.sf(4.0, 1)) and "not supported" in t.note
 
 
+def test_a_one_sided_column_is_divided_by_the_step_it_was_made_with():
+    """``problem.one_sided_column`` rescales its step up to twice until the residual moves by its target; where the
+    response is not linear (here quadratic in the step) no step may land in range, and the column must still be the
+    last difference over the step that made it, never over a step it was not made with."""
+    from ident.diagnosis.models.problem import one_sided_column
+
+    r = np.zeros(100)
+    made = []
+
+    def moved(h: float) -> np.ndarray:
+        made.append(h)
+        return r + np.full(r.size, 1e6 * h * h)
+
+    col = one_sided_column(moved, r, 1.0, target=1.0)
+    assert len(made) == 3
+    np.testing.assert_allclose(col, np.full(r.size, 1e6 * made[-1]))   # (1e6 h^2) / h at the last step
+    made.clear()
+    linear = one_sided_column(lambda h: (made.append(h), r + 2.0 * h)[1], r, 1e-3, target=1.0)
+    assert len(made) == 2   # rescaled once, then in range
+    np.testing.assert_allclose(linear, 2.0)
+
+
 def test_hysteresis_coordinates_stay_in_the_fmus_range():
     """A tiny hysteresis torque over the widest saturation deflection asked the FMU for a stiffness below its range
     (matrix log 5216 stopped with a ParameterError); the range's end now stands for it, everywhere on the box."""
