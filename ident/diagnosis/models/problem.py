@@ -221,11 +221,11 @@ def rms(x: np.ndarray) -> float:
 
 def one_sided_column(moved: Callable[[float], np.ndarray], r: np.ndarray, h: float, target: float) -> np.ndarray:
     """d(residual)/d(step) by a one-sided difference: ``moved(h)`` is the residual after a step ``h``, ``r`` the
-    residual without it. The step is rescaled (up to three times) until the residual moves by ``target`` (RMS, in
-    noise sigmas) within a factor of 3: a linear response far above the FMU's round-off. The screen's candidate
-    columns and the outside rival's (``ripple.columns``) are made so. The column is always divided by the step it
-    was made with (the third step's, when none landed in range: before, that difference was divided by a fourth,
-    rescaled step it was never made with)."""
+    residual without it. The step is tried up to three times, rescaled after each try, until the residual moves by
+    ``target`` (RMS, in noise sigmas) within a factor of 3: a linear response far above the FMU's round-off. The
+    screen's candidate columns and the outside rival's (``ripple.columns``) are made so. The column is always
+    divided by the step it was made with (the third step's, when none landed in range: before, that difference was
+    divided by a fourth, rescaled step it was never made with)."""
     col = moved(h) - r
     for _ in range(2):
         size = rms(col)
