@@ -170,28 +170,24 @@ def test_a_signal_that_a_c_library_turned_into_its_own_error_still_exits_as_stop
     assert capsys.readouterr().err.strip() == f"hdrive sweep: {line}; no output was left half-written"
 
 
-def test_the_command_line_leaves_an_ignored_ctrl_c_ignored() -> None:
+def test_the_command_line_leaves_an_ignored_ctrl_c_ignored(monkeypatch) -> None:
     """``cli.main`` takes Ctrl-C over only from Python's own handler: a command started in the background, where the
     shell has SIGINT ignored, must keep ignoring it; and every handler is given back when the command returns."""
     from ident import cli
 
+    seen = []
+
+    def spy(args):
+        seen.append((signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)))
+        return 0, None
+
+    monkeypatch.setattr(cli, "run", spy)
     before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-        seen = []
-        real = cli.run
-
-        def spy(args):
-            seen.append((signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)))
-            return 0, None
-
-        cli.run = spy
-        try:
-            assert cli.main(["build-fmu", "--out", "unused"]) == 0
-            signal.signal(signal.SIGINT, signal.default_int_handler)
-            assert cli.main(["build-fmu", "--out", "unused"]) == 0
-        finally:
-            cli.run = real
+        assert cli.main(["build-fmu", "--out", "unused"]) == 0
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        assert cli.main(["build-fmu", "--out", "unused"]) == 0
         assert seen == [(signal.SIG_IGN, cli._on_signal), (cli._on_signal, cli._on_signal)]
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     finally:
