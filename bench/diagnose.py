@@ -7,7 +7,7 @@ here as 10 s logs at 5 kHz (the timing target: at most 2 minutes each on 2 cores
 (named / missed / false, confident names, wall time median and max, what the screen ranked first) and the magnitude
 errors where the generator's shape is the library's are printed and written to ``--out``.
 
-    python3 bench/diagnose.py [--duration 10] [--rate 5000] [--classes single,clean] [--only hardening]
+    python3 bench/diagnose.py [--duration 10] [--rate 5000] [--classes single,clean] [--only hardening|5102|LOG]
                               [--quick]
                               [--workers N] [--out bench/results/diagnose.json]
 """
@@ -42,7 +42,8 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=10.0)
     ap.add_argument("--rate", type=float, default=5000.0)
     ap.add_argument("--classes", default=",".join(CLASSES))
-    ap.add_argument("--only", default="", help="comma-separated effects or seeds to keep (default: all)")
+    ap.add_argument("--only", default="", help="comma-separated effects, seeds or log names (e.g. "
+                    "single-5102-hardening-weak-steps-three_slope) to keep (default: all)")
     ap.add_argument("--quick", action="store_true",
                     help="a stratified sample of 16 logs instead of the matrix: the first medium-magnitude log of "
                          "each library effect, 4 clean, 2 two-effect and 3 outside-the-library logs")
@@ -51,7 +52,7 @@ def main() -> int:
     args = ap.parse_args()
     keep = {x for x in args.only.split(",") if x}
     cases = [c for c in matrix() if c.cls in args.classes.split(",")
-             and (not keep or c.effect in keep or str(c.seed) in keep)]
+             and (not keep or c.effect in keep or str(c.seed) in keep or c.stem in keep)]
     if args.quick:
         cases = quick_sample(cases)
     out = Path(args.out)
