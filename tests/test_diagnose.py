@@ -665,6 +665,60 @@ class _Recorded:
         return {}
 
 
+def test_between_twins_the_held_back_data_cannot_tell_apart_the_whole_log_decides() -> None:
+    """``_Search._select`` (``_twin_or``): the candidate with the lowest held-back cost passes the rule; its twin
+    (viscous friction on the other side of the gear) predicts the held-back data 2 noise variances worse, which the
+    Diebold-Mariano test cannot tell from chance, and fits the training data 30 better: the twin explains the whole
+    log better, passes the rule too, and is accepted, the table saying why. The winner stays when the twin explains
+    the whole log worse, when the held-back data do tell them apart (the twin 200 worse there, though 300 better on
+    the training data), when the twin fails the rule, and when the winner has no twin."""
+    from ident.diagnosis.engine import _Say, _Search
+    from ident.diagnosis.models import CandidateFit, Magnitude
+
+    rng = np.random.default_rng(5611)
+    base = rng.chisquare(1, 4000)
+
+    def fitted(name: str, train: float, held: np.ndarray) -> Fitted:
+        return Fitted((name,), train, float(held.sum()), held, 4000, 5)
+
+    current = Fitted((), 9000.0, float(2 * base.sum()), 2 * base, 4000, 4)
+
+    class Plugin(_Recorded):
+        twins, zero = True, ()
+
+        def twin_of(self, m: Fitted, name: str) -> tuple[str, str, str] | None:
+            other = {"viscous_load": "viscous_motor", "viscous_motor": "viscous_load"}
+            return (other[name], "b = 1", "record a ringing") if self.twins and name in other else None
+
+        def magnitude(self, m: Fitted, name: str) -> Magnitude:
+            return Magnitude(1.0, (-1.0, 3.0) if name in self.zero else (0.5, 1.5), "N.m.s/rad")
+
+        @staticmethod
+        def without(m: Fitted, name: str, budget: float | None) -> Fitted:
+            return current
+
+    def select(twin_train: float, twin_shift: float, plugin: Plugin | None = None) -> tuple[str, list[dict]]:
+        winner = fitted("viscous_load", 4030.0, base + rng.normal(0.0, 0.1, base.size))
+        twin = fitted("viscous_motor", twin_train, base + twin_shift + rng.normal(0.0, 0.1, base.size))
+        twin.held_cost = winner.held_cost + twin_shift * base.size + 2.0
+        search = _Search(plugin or Plugin(), None, None, 3, _Say(False))
+        chosen, rows, _ = search._select(current, [CandidateFit("viscous_load", winner),
+                                                   CandidateFit("viscous_motor", twin)], 0)
+        return chosen.name, rows
+
+    name, rows = select(4000.0, 0.0)
+    assert name == "viscous_motor" and [r["accepted"] for r in rows] == [False, True]
+    assert "its twin viscous_motor explains the whole log better" in rows[0]["why"]
+    assert select(4040.0, 0.0)[0] == "viscous_load"
+    assert select(3730.0, 0.05)[0] == "viscous_load"
+    failing = Plugin()
+    failing.zero = ("viscous_motor",)
+    assert select(4000.0, 0.0, failing)[0] == "viscous_load"
+    alone = Plugin()
+    alone.twins = False
+    assert select(4000.0, 0.0, alone)[0] == "viscous_load"
+
+
 def test_a_better_model_without_a_candidate_replaces_a_stalled_current_model() -> None:
     """``_Search._step``: a candidate whose refit passes the rule with a size not told from 0 (or fails its drop
     test) gained by refitting the rest; the model without it, refitted from there (``plugin.without``), replaces the
