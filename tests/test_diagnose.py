@@ -664,6 +664,10 @@ class _Recorded:
     def effect_start(m: Fitted, name: str) -> dict[str, float]:
         return {}
 
+    @staticmethod
+    def twin_of(m: Fitted, name: str) -> None:
+        return None
+
 
 def test_between_twins_the_held_back_data_cannot_tell_apart_the_whole_log_decides() -> None:
     """``_Search._select`` (``_twin_or``): the candidate with the lowest held-back cost passes the rule; its twin
@@ -888,10 +892,6 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
 
         def over_noise(self, m: Fitted) -> tuple[float, float] | None:
             return self.over
-
-        @staticmethod
-        def twin_of(m: Fitted, name: str) -> None:
-            return None
 
     class Pool:
         def __init__(self, plugin: Plugin) -> None:
