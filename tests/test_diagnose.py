@@ -630,6 +630,8 @@ class _Pool:
     """A stand-in worker pool for the loop's tests: the plug-in as it is, and ``results`` for every batch (None:
     a None per task, a task that failed); every task it was given is kept in ``tasks``."""
 
+    elsewhere = None   # no second core for the base fit
+
     def __init__(self, results: list | None = None) -> None:
         self.results, self.tasks = results, []
 
@@ -894,6 +896,8 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
             return self.over
 
     class Pool:
+        elsewhere = None
+
         def __init__(self, plugin: Plugin) -> None:
             self.plugin = plugin
 
@@ -960,7 +964,7 @@ def test_each_step_may_replace_its_stalled_model_twice() -> None:
         kind = "test"
 
         @staticmethod
-        def fit_base() -> Fitted:
+        def fit_base(elsewhere: object = None) -> Fitted:
             return model((), 100.0)
 
         @staticmethod
@@ -973,7 +977,7 @@ def test_each_step_may_replace_its_stalled_model_twice() -> None:
 
     # per call of _step: "r" replaces the current model, "a" names an effect
     for script, models in (("rrarr", 2), ("rrrr", 1)):
-        search = _Search(Plugin(), None, None, 5, _Say(False))
+        search = _Search(Plugin(), _Pool(), None, 5, _Say(False))
         calls = iter(script)
 
         def step(current: Fitted, names: tuple[str, ...]) -> Fitted | None:

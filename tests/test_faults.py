@@ -95,6 +95,56 @@ def test_a_batch_waiting_on_a_long_task_shows_its_progress_alive(monkeypatch, ca
     assert len({line.split("[")[1].split("<")[0] for line in waiting}) >= 3, err
 
 
+def _answer(args: tuple, cancelled: object) -> int:
+    return 2 * args[0]
+
+
+def _refuse(args: tuple, cancelled: object) -> int:
+    raise ValueError(f"refused {args[0]}")
+
+
+def _wait_for_cancel(args: tuple, cancelled: object) -> int:
+    """Look for the cancel as a fit does (before each simulation); say on disk when it was seen."""
+    for i in range(400):
+        if cancelled():   # type: ignore[operator]
+            Path(args[0]).write_text(str(i))
+            return i
+        time.sleep(0.025)
+    return -1
+
+
+def test_work_beside_comes_back_stops_when_cancelled_and_says_when_it_could_not_run(tmp_path, monkeypatch) -> None:
+    """``WorkerPool.beside`` (the identifier's second start path, run beside its first): the task's result or its
+    own exception comes back; a cancel reaches the task on its worker; a pool whose workers did not start says so
+    with ``NotRunElsewhere`` (the caller then runs the work itself), not with the pool's error; a serial pool offers
+    no such core."""
+    from ident.common.elsewhere import NotRunElsewhere
+
+    assert batch.WorkerPool(0).elsewhere is None
+    with batch.WorkerPool(1) as pool:
+        assert pool.elsewhere is not None
+        assert pool.elsewhere(_answer, (21,)).result() == 42
+        with pytest.raises(ValueError, match="refused 3"):
+            pool.beside(_refuse, (3,)).result()
+        seen = tmp_path / "seen"
+        waiting = pool.beside(_wait_for_cancel, (str(seen),))
+        time.sleep(0.5)
+        waiting.cancel()
+        for _ in range(200):
+            if seen.exists():
+                break
+            time.sleep(0.05)
+        assert seen.exists() and int(seen.read_text()) >= 0
+
+    def no_cluster(n: int, scratch: str) -> None:
+        raise OSError("no processes allowed here")
+
+    monkeypatch.setattr(batch, "_new_cluster", no_cluster)
+    with batch.WorkerPool(1) as pool:
+        with pytest.raises(NotRunElsewhere, match="no processes allowed here"):
+            pool.beside(_answer, (1,)).result()
+
+
 def test_a_second_run_at_once_does_not_warn_about_the_dashboards_port() -> None:
     """Two hdrive runs at once on one machine: the second's local cluster takes a free port for its dashboard
     rather than warning on stderr that Dask's default (8787) is in use (seen in the default test run)."""

@@ -13,6 +13,7 @@ The default run takes the generator's 12-case suite (every excitation twice) as 
 from __future__ import annotations
 
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -285,7 +286,9 @@ def test_second_start_path_where_the_first_misses_the_noise(tmp_path, monkeypatc
 
     g = identification_case(4231, "default")
     log = read_back(g, tmp_path)
-    assert identify(log).start["start_path"] == START_PATHS[0].describe()   # the first path now suffices
+    beside = _Deferred()
+    assert identify(log, elsewhere=beside).start["start_path"] == START_PATHS[0].describe()  # the first suffices
+    assert beside.started == 1 and beside.cancelled and not beside.asked   # started beside it, then not needed
     monkeypatch.setattr(identify_module, "_rescale", lambda problem, fitted, previous, iterations, f_peak_hz:
                         (fitted, problem.sigma_l))
     fit = identify(log)
@@ -293,6 +296,33 @@ def test_second_start_path_where_the_first_misses_the_noise(tmp_path, monkeypatc
     assert fit.start["start_path"] == START_PATHS[1].describe()
     first, second = fit.start["other_path_costs"]
     assert second < first
+    # run elsewhere (its task and its result through pickle, as to a worker and back): the very same fit
+    beside = _Deferred()
+    again = identify(log, elsewhere=beside)
+    assert beside.started == 1 and beside.asked and not beside.cancelled
+    np.testing.assert_array_equal(again.theta, fit.theta)
+    assert again.start == fit.start and again.sigma_load_rad == fit.sigma_load_rad
+
+
+class _Deferred:
+    """A stand-in for another core (``ident.common.elsewhere``): the task and its result go through pickle as to a
+    worker process; it runs when its result is asked (the first path's IPOPT must not share the process with it)."""
+
+    def __init__(self) -> None:
+        self.started, self.asked, self.cancelled = 0, False, False
+
+    def __call__(self, fn: object, args: tuple) -> "_Deferred":
+        self.started += 1
+        self.task = pickle.dumps((fn, args))
+        return self
+
+    def result(self) -> object:
+        self.asked = True
+        fn, args = pickle.loads(self.task)
+        return pickle.loads(pickle.dumps(fn(args, lambda: self.cancelled)))
+
+    def cancel(self) -> None:
+        self.cancelled = True
 
 
 def test_the_second_start_path_is_skipped_where_it_would_repeat_the_first(monkeypatch) -> None:

@@ -232,7 +232,7 @@ class _Search:
     def run(self) -> Fitted:
         self.say(f"fitting the base {self.plugin.kind} model ...")
         with timed(self.stage_s, "base fit"):
-            current = self.plugin.fit_base()
+            current = self.plugin.fit_base(self.pool.elsewhere)
             self._record(current, None, None, {})
         self.say(f"base model: {self._gap(current)}")
         refreshed = 0

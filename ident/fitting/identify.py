@@ -45,12 +45,13 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from ..common.blas import one_blas_thread
+from ..common.elsewhere import Elsewhere, NotRunElsewhere, Running
 from ..model.params import DriveParams, ParameterError
 from ..model.plant import Plant, PlantError
 from .ahead import Result, block, run_ahead, usable
@@ -735,7 +736,8 @@ class _Run:
 
 def fit_tracks(log: DriveLog, base: DriveParams, make: Callable[..., OutputError], extra: np.ndarray, *,
                progress: bool = False, verbose: bool = False, first_window_periods: float = 8.0,
-               max_iter: int = 40, stage_iter: int = 12, growth: float = 1.3, thorough: bool = False
+               max_iter: int = 40, stage_iter: int = 12, growth: float = 1.3, thorough: bool = False,
+               elsewhere: Elsewhere | None = None
                ) -> tuple[list[Track], OutputError, dict[str, Any], list[dict[str, Any]]]:
     """Steps 1-3 of the module docstring: (the surviving optima, best first; the whole-log problem, open, its load
     rows in units of the final noise estimate; the start; the stages). ``thorough`` (``identify``'s own fit): the
@@ -753,17 +755,32 @@ def fit_tracks(log: DriveLog, base: DriveParams, make: Callable[..., OutputError
     fixed five of 26 new drives' logs (106-55000x the noise before) and put two of the 60-log suite (a chirp and a
     default design, at the noise before) at 6650x and 12.6x; the noise test tells which path failed. A third (a
     pulse train) crept along the scale's valley to 1.005x the noise, 10 bound sigmas off, its last fit stopped by
-    the iteration limit: the other path's optimum is lower."""
+    the iteration limit: the other path's optimum is lower.
+
+    ``elsewhere`` (the diagnosis's workers, ``Elsewhere``): the second path starts there as soon as the first path's
+    first stage shows that it would differ, and runs beside the first rather than after it; it is used exactly where
+    it would have run here (the same decisions, the same numbers), and cancelled where not."""
     run = _Run(log, base, make, extra, first_window_periods, max_iter, stage_iter, growth, thorough, progress, verbose)
     start = _start(log, base)
     say(progress, "  start: " + (f"ringing {start['f_peak_hz']:.4g} Hz from {start['segments']} free-ringing "
                                   "segment(s)" if start["frequency_trusted"] else
                                   f"free ringing not conclusive ({start['segments']} segment(s)): scanning "
                                   f"{len(start['candidates_hz'])} candidate frequencies"))
-    first = _one_path(run, dict(start), START_PATHS[0])
+    beside: list[Running] = []
+
+    def launch(first_start: dict[str, Any]) -> None:   # after the first path's first stage
+        if thorough and elsewhere is not None and _paths_differ(log, first_start, first_window_periods):
+            beside.append(elsewhere(other_path_task, (run, dict(start), START_PATHS[1])))
+
+    try:
+        first = _one_path(run, dict(start), START_PATHS[0], launch)
+    except BaseException:
+        _cancel(beside)
+        raise
     tracks, problem = first[0], first[1]
     settled = at_noise(problem, tracks[0].theta) and tracks[0].info.get("status") in CONVERGED
     if not thorough or settled:
+        _cancel(beside)
         return first
     if not _paths_differ(log, first[2], first_window_periods):
         first[2]["other_path"] = "not run: it would choose the first path's window and candidate"
@@ -771,11 +788,12 @@ def fit_tracks(log: DriveLog, base: DriveParams, make: Callable[..., OutputError
     say(progress, "  the whole-log fit stays above the noise or stopped at its iteration limit: the start's other "
                   "path (" + START_PATHS[1].describe() + ") ...")
     try:
-        second = _one_path(run, dict(start), START_PATHS[1])
+        second = _second_path(run, start, beside)
     except Exception as exc:  # noqa: BLE001 - the first path's result stands; the failure is recorded
         first[2]["other_path_error"] = f"{type(exc).__name__}: {exc}"
         return first
     except BaseException:   # Ctrl-C, SIGTERM: the first path's FMU instance goes too
+        _cancel(beside)
         problem.close()
         raise
     costs = (problem.cost(tracks[0].theta), problem.cost(second[0][0].theta))
@@ -787,13 +805,17 @@ def fit_tracks(log: DriveLog, base: DriveParams, make: Callable[..., OutputError
     return keep
 
 
-def _one_path(run: _Run, start: dict[str, Any], path: StartPath
+def _one_path(run: _Run, start: dict[str, Any], path: StartPath,
+              after_first: Callable[[dict[str, Any]], None] | None = None
               ) -> tuple[list[Track], OutputError, dict[str, Any], list[dict[str, Any]]]:
-    """``fit_tracks`` along one start path (``start`` is this path's copy: the first stage records in it)."""
+    """``fit_tracks`` along one start path (``start`` is this path's copy: the first stage records in it;
+    ``after_first`` is called with it then)."""
     start["start_path"] = path.describe()
     stages: list[dict[str, Any]] = []
     tracks, sigma, stop = _first_stage(run, start, stages, path)
     _say_stage(run.progress, stages[-1], len(tracks))
+    if after_first is not None:
+        after_first(start)
     problem, tracks = _continuation(run, start, tracks, sigma, stages, stop)
     try:
         tracks = _other_basin(problem, tracks, stages, run.stage_iter, run.progress)
@@ -816,6 +838,71 @@ def _paths_differ(log: DriveLog, first: dict[str, Any], periods: float) -> bool:
                        for f, stop in first["first_windows"])
     pick = first["f_peak_hz"] if other.own_window else first["longest_window_winner_hz"]
     return not (same_windows and pick == first["f_peak_hz"])
+
+
+class _StopWhenCancelled(EvaluationBudget):
+    """An unlimited budget that refuses the next simulation once ``cancelled()`` (the fit then stops as one whose
+    budget ran out: ``BudgetExceeded``). Only the work of a path whose result is no longer wanted is cut short."""
+
+    def __init__(self, cancelled: Callable[[], bool]):
+        super().__init__()
+        self.cancelled = cancelled
+
+    def check(self, samples: int) -> None:
+        if self.cancelled():
+            raise BudgetExceeded("cancelled: the result is no longer needed")
+
+
+@dataclass(frozen=True)
+class _CancellableMaker:
+    """``make``, whose problems stop simulating once ``cancelled()`` (``_StopWhenCancelled``)."""
+
+    make: Callable[..., OutputError]
+    cancelled: Callable[[], bool]
+
+    def __call__(self, *args: Any, **kwargs: Any) -> OutputError:
+        problem = self.make(*args, **kwargs)
+        problem.budget = _StopWhenCancelled(self.cancelled)
+        return problem
+
+
+def other_path_task(args: tuple, cancelled: Callable[[], bool]
+                    ) -> tuple[list[Track], tuple[int, float], dict[str, Any], list[dict[str, Any]]]:
+    """``_one_path`` on a worker (``fit_tracks``' ``elsewhere``): its whole-log problem holds an FMU instance, so it
+    comes back as what rebuilds it (its window's end and its rows' noise level: ``_rebuilt``)."""
+    run, start, path = args
+    tracks, problem, start, stages = _one_path(replace(run, make=_CancellableMaker(run.make, cancelled)), start, path)
+    try:
+        return tracks, (problem.stop, problem.sigma_l), start, stages
+    finally:
+        problem.close()
+
+
+def _rebuilt(run: _Run, done: tuple[list[Track], tuple[int, float], dict[str, Any], list[dict[str, Any]]]
+             ) -> tuple[list[Track], OutputError, dict[str, Any], list[dict[str, Any]]]:
+    """A path run elsewhere (``other_path_task``) as ``_one_path`` returns it: the whole-log problem made again,
+    the same window weighed with the same noise level (its residuals are a function of these alone)."""
+    tracks, (stop, sigma), start, stages = done
+    problem = run.make(run.log, run.base, stop, sigma)
+    problem.verbose = run.verbose
+    return tracks, problem, start, stages
+
+
+def _second_path(run: _Run, start: dict[str, Any], beside: list[Running]
+                 ) -> tuple[list[Track], OutputError, dict[str, Any], list[dict[str, Any]]]:
+    """The start's second path: run beside the first (``beside``, when it was started there and could run), else
+    here."""
+    if beside:
+        try:
+            return _rebuilt(run, beside[0].result())
+        except NotRunElsewhere:
+            pass
+    return _one_path(run, dict(start), START_PATHS[1])
+
+
+def _cancel(running: list[Running]) -> None:
+    for r in running:
+        r.cancel()
 
 
 def fit_pipeline(log: DriveLog, base: DriveParams, make: Callable[..., OutputError], extra: np.ndarray, *,
@@ -1446,11 +1533,12 @@ def _warnings(estimates: dict[str, Estimate], fit: dict[str, float], bound: list
 @one_blas_thread()
 def identify(log: DriveLog, *, model: str = "two-inertia", progress: bool = False, verbose: bool = False,
              first_window_periods: float = 8.0, max_iter: int = 40, stage_iter: int = 12,
-             growth: float = 1.3, checks: bool = True) -> TwoInertiaFit:
+             growth: float = 1.3, checks: bool = True, elsewhere: Elsewhere | None = None) -> TwoInertiaFit:
     """Estimate K*, J_l*, f_l* (two-inertia model) or the rigid model (``model="rigid"``) from ``log``.
 
     ``checks``: run the data checks first (``datachecks.check_log``; a failed check raises ``LogError`` before
     anything is fitted). ``progress``: one line per fitting stage on stderr; ``verbose``: IPOPT's own output too.
+    ``elsewhere``: another core for the start's second path (``fit_tracks``; the same result, sooner).
     The result marks each parameter identifiable or not (``TwoInertiaFit.identifiable``)."""
     if model == "rigid":
         from .rigid import identify_rigid
@@ -1471,7 +1559,7 @@ def identify(log: DriveLog, *, model: str = "two-inertia", progress: bool = Fals
     tracks, problem, start, stages = fit_tracks(log, base, OutputError, np.zeros(0), progress=progress,
                                                 verbose=verbose, first_window_periods=first_window_periods,
                                                 max_iter=max_iter, stage_iter=stage_iter, growth=growth,
-                                                thorough=True)
+                                                thorough=True, elsewhere=elsewhere)
     try:
         return build_result(log, problem, tracks, start, stages, data_checks, time.perf_counter() - t0)
     finally:

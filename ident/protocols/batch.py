@@ -22,12 +22,14 @@ import shutil
 import sys
 import tempfile
 import threading
+import uuid
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence, TypeVar
 
 from tqdm import tqdm
 
+from ..common.elsewhere import Elsewhere, NotRunElsewhere, Task
 from ..common.workdir import kept_working_directory
 
 T = TypeVar("T")
@@ -288,6 +290,57 @@ def _gather(client: Any, fn: Callable[[T], R], items: list[T], progress: bool, d
     return results
 
 
+class Beside:
+    """One task on a local worker (``WorkerPool.beside``), submitted and collected by a thread of its own. Its
+    cancel is a file in the pool's scratch folder, which the task's ``cancelled()`` looks for (a look costs about a
+    microsecond: a fit can ask before every simulation). A failure of the pool rather than of the task (the workers
+    did not start, or died) comes back from ``result`` as ``NotRunElsewhere``: the caller then runs it itself."""
+
+    def __init__(self, pool: WorkerPool, fn: Task, args: tuple):
+        assert pool._scratch is not None
+        self._flag = os.path.join(pool._scratch, f"cancelled-{uuid.uuid4().hex}")
+        self._out: list[tuple[bool, Any]] = []   # (the task raised, its result or exception)
+        self._failed: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, args=(pool, fn, args), name="hdrive-beside", daemon=True)
+        self._thread.start()
+
+    def _run(self, pool: WorkerPool, fn: Task, args: tuple) -> None:
+        try:
+            pool._ready()
+            if not os.path.exists(self._flag):
+                where = pool.scheduler or "the local cluster"
+                self._out.append(_gather(pool.client, _until_cancelled, [(fn, args, self._flag)], False, "beside",
+                                         where)[0])
+        except BaseException as exc:  # noqa: BLE001 - the pool's failure, handed to ``result``
+            self._failed = exc
+
+    def result(self) -> Any:
+        while self._thread.is_alive():   # in short slices: Ctrl-C is seen at once
+            self._thread.join(0.1)
+        if self._failed is not None or not self._out:
+            raise NotRunElsewhere(f"the task could not run on a worker: {self._failed or 'cancelled'}")
+        raised, value = self._out[0]
+        if raised:
+            raise value
+        return value
+
+    def cancel(self) -> None:
+        try:
+            Path(self._flag).touch()
+        except OSError:   # the pool and its folder are gone already, and the task with them
+            pass
+
+
+def _until_cancelled(item: tuple[Task, tuple, str]) -> tuple[bool, Any]:
+    """A ``Beside`` task on the worker: (whether it raised, its result or exception); the task's own exception comes
+    back as a value, so that ``Beside`` tells it from the pool's failures."""
+    fn, args, flag = item
+    try:
+        return False, fn(args, lambda: os.path.exists(flag))
+    except Exception as exc:  # noqa: BLE001 - re-raised by Beside.result in the caller
+        return True, exc
+
+
 def _start_hint() -> str:
     """What to do when the workers failed because the caller's main script runs hdrive's work at import: each worker
     is a new process that imports the main module (multiprocessing's spawn), so the script started workers again
@@ -400,6 +453,18 @@ class WorkerPool:
         self._ready()
         order = None if cost is None else sorted(range(len(items)), key=lambda i: -cost[i])
         return _gather(self.client, fn, items, progress, desc, self.scheduler or "the local cluster", order)
+
+    @property
+    def elsewhere(self) -> Elsewhere | None:
+        """``beside`` where the pool has local workers; None where it runs serially or on a cluster elsewhere (whose
+        workers share no folder with this process to see a cancel in)."""
+        return self.beside if self._scratch is not None else None
+
+    def beside(self, fn: Task, args: tuple) -> Beside:
+        """``fn(args, cancelled)`` on one local worker while this process goes on (``ident.common.elsewhere``);
+        it is submitted from a thread as soon as the workers are up, so this returns at once even while they
+        start."""
+        return Beside(self, fn, args)
 
     def close(self, interrupted: bool = False) -> None:
         """Stop the pool; ``interrupted``: kill the local workers rather than wait for their tasks."""

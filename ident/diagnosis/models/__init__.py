@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ...common.elsewhere import Elsewhere
 from .. import CONFIDENT_OVER_NOISE
 from ..result import DiagnosisStep
 from ..screening import ScoreTest
@@ -99,8 +100,9 @@ class ModelPlugin(ABC):
     min_gain: float = 1.02
 
     @abstractmethod
-    def fit_base(self) -> Fitted:
-        """The base model on the training data."""
+    def fit_base(self, elsewhere: Elsewhere | None = None) -> Fitted:
+        """The base model on the training data; ``elsewhere``: a second core the fit may use beside this one
+        (``ident.common.elsewhere``: the same result, sooner)."""
 
     @abstractmethod
     def candidates(self, model: Fitted) -> tuple[str, ...]:

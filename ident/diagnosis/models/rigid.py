@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ...common.elsewhere import Elsewhere
 from ...fitting.logs import DriveLog, LogError
 from ...fitting.rigid import generic_idim_settings, identify_rigid
 from ..result import DiagnosisStep, PublishedReference
@@ -81,7 +82,8 @@ class RigidPlugin(ModelPlugin):
 
     # ---------------------------------------------------------------------------------------- models ----------
 
-    def fit_base(self) -> Fitted:
+    def fit_base(self, elsewhere: Elsewhere | None = None) -> Fitted:
+        """The rigid base model: one linear least-squares fit (``elsewhere`` has nothing to take)."""
         fit = fit_spec(Spec(frozenset()), self.p)
         if fit.coord("M") <= 0:
             raise RuntimeError(f"{self.log.source}: identified inertia {fit.coord('M'):g} is not positive: the log "

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ...common.elsewhere import Elsewhere
 from ...fitting.identify import (
     Z95,
     BudgetExceeded,
@@ -136,11 +137,11 @@ class TwoInertiaPlugin(ModelPlugin):
 
     # ---------------------------------------------------------------------------------------- models ----------
 
-    def fit_base(self) -> Fitted:
+    def fit_base(self, elsewhere: Elsewhere | None = None) -> Fitted:
         """The identifier on the training part (``identify``: its data checks, its fit and its one load-noise
-        estimate, which weighs every model of the diagnosis); with the rigid start, the rigid kinematics (the
-        identification is then flexibility's refit)."""
-        self.identified = identify(truncate_log(self.full, self.stop))
+        estimate, which weighs every model of the diagnosis; its start's second path on ``elsewhere``); with the
+        rigid start, the rigid kinematics (the identification is then flexibility's refit)."""
+        self.identified = identify(truncate_log(self.full, self.stop), elsewhere=elsewhere)
         self.sigma = self.identified.sigma_load_rad
         if self.start == "rigid":
             return self._rigid()
