@@ -121,6 +121,8 @@ def test_work_beside_comes_back_stops_when_cancelled_and_says_when_it_could_not_
     from ident.common.elsewhere import NotRunElsewhere
 
     assert batch.WorkerPool(0).elsewhere is None
+    with pytest.raises(batch.BatchError, match="needs local workers: this pool runs serially"):
+        batch.WorkerPool(0).beside(_answer, (1,))
     with batch.WorkerPool(1) as pool:
         assert pool.elsewhere is not None
         assert pool.elsewhere(_answer, (21,)).result() == 42

@@ -297,8 +297,7 @@ class Beside:
     did not start, or died) comes back from ``result`` as ``NotRunElsewhere``: the caller then runs it itself."""
 
     def __init__(self, pool: WorkerPool, fn: Task, args: tuple):
-        assert pool._scratch is not None
-        self._flag = os.path.join(pool._scratch, f"cancelled-{uuid.uuid4().hex}")
+        self._flag = os.path.join(str(pool._scratch), f"cancelled-{uuid.uuid4().hex}")
         self._out: list[tuple[bool, Any]] = []   # (the task raised, its result or exception)
         self._failed: BaseException | None = None
         self._thread = threading.Thread(target=self._run, args=(pool, fn, args), name="hdrive-beside", daemon=True)
@@ -463,7 +462,10 @@ class WorkerPool:
     def beside(self, fn: Task, args: tuple) -> Beside:
         """``fn(args, cancelled)`` on one local worker while this process goes on (``ident.common.elsewhere``);
         it is submitted from a thread as soon as the workers are up, so this returns at once even while they
-        start."""
+        start. Only a pool with local workers has such a core (``elsewhere``)."""
+        if self._scratch is None:
+            raise BatchError("work beside this process needs local workers: this pool "
+                             + ("runs serially" if self.serial else f"runs on {self.scheduler}"))
         return Beside(self, fn, args)
 
     def close(self, interrupted: bool = False) -> None:
