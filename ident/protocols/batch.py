@@ -307,15 +307,13 @@ class Beside:
         try:
             pool._ready()
             if not os.path.exists(self._flag):
-                where = pool.scheduler or "the local cluster"
                 self._out.append(_gather(pool.client, _until_cancelled, [(fn, args, self._flag)], False, "beside",
-                                         where)[0])
+                                         "the local cluster")[0])
         except BaseException as exc:  # noqa: BLE001 - the pool's failure, handed to ``result``
             self._failed = exc
 
     def result(self) -> Any:
-        while self._thread.is_alive():   # in short slices: Ctrl-C is seen at once
-            self._thread.join(0.1)
+        _join(self._thread)
         if self._failed is not None or not self._out:
             raise NotRunElsewhere(f"the task could not run on a worker: {self._failed or 'cancelled'}")
         raised, value = self._out[0]
@@ -328,6 +326,13 @@ class Beside:
             Path(self._flag).touch()
         except OSError:   # the pool and its folder are gone already, and the task with them
             pass
+
+
+def _join(thread: threading.Thread) -> None:
+    """Wait for ``thread`` in short slices, so that Ctrl-C is seen at once (a plain join blocks signals' handling
+    in the main thread until the thread ends)."""
+    while thread.is_alive():
+        thread.join(0.1)
 
 
 def _until_cancelled(item: tuple[Task, tuple, str]) -> tuple[bool, Any]:
@@ -418,9 +423,9 @@ class WorkerPool:
             self._error = exc
 
     def _ready(self) -> None:
-        """Wait for the local workers (in short slices, so that Ctrl-C is seen at once)."""
-        while self._starting is not None and self._starting.is_alive():
-            self._starting.join(0.1)
+        """Wait for the local workers (``_join``)."""
+        if self._starting is not None:
+            _join(self._starting)
         if self._error is not None:
             why = str(self._error).rstrip(".")
             raise BatchError(f"the local Dask workers did not start: {why}{_start_hint()}") from self._error
