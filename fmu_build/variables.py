@@ -93,7 +93,7 @@ VARIABLES: tuple[Variable, ...] = (
     _param("b_m", 100, 0.0, 0.0, 1e6, "N.m.s/rad", "Motor viscous friction coefficient"),
     _param("b_l", 101, 0.0, 0.0, 1e6, "N.m.s/rad", "Load viscous friction coefficient"),
     _param("stribeck_ratio", 102, 0.0, 0.0, 10.0, "1",
-           "Static level / Coulomb level - 1 (both bodies): Stribeck friction f (1 + s exp(-(v/vs)^2))"),
+           "Static level / Coulomb level - 1 (both bodies): Stribeck friction f (1 + s exp(-|v/vs|^delta))"),
     _param("stribeck_velocity", 103, 1e-3, 1e-12, 1e6, "rad/s",
            "Stribeck velocity vs on the load side; the motor uses stribeck_velocity / r"),
     _param("friction_asymmetry", 104, 0.0, -0.99, 0.99, "1",
@@ -111,6 +111,8 @@ VARIABLES: tuple[Variable, ...] = (
     _param("kinematic_error_4", 111, 0.0, 0.0, 1.0, "rad",
            "Amplitude A4 of the transmission error's second harmonic, four times per wave-generator turn"),
     _param("kinematic_error_4_phase", 112, 0.0, -10.0, 10.0, "rad", "Phase phi4 of the second harmonic"),
+    _param("stribeck_shape", 113, 2.0, 1.0, 4.0, "1",
+           "Exponent delta of the Stribeck decay exp(-|v/vs|^delta): 2 Gaussian (the default), 1 exponential"),
 )
 
 BY_NAME: dict[str, Variable] = {v.name: v for v in VARIABLES}

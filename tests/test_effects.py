@@ -19,9 +19,10 @@ OUTS = ("q_m", "q_l", "v_m", "v_l", "hysteresis_state", "deflection", "spring_to
         "load_friction_torque")
 
 
-@pytest.fixture(scope="module")
-def run():
-    p = DriveParams().with_values(**ALL_ON)
+@pytest.fixture(scope="module", params=[2.0, 1.0, 1.5], ids=["gaussian", "exponential", "delta-1.5"])
+def run(request):
+    """The pulse train with every effect on, for each Stribeck decay exponent (``stribeck_shape``)."""
+    p = DriveParams().with_values(**ALL_ON, stribeck_shape=request.param)
     dt = 1e-4
     torque = np.zeros(4000)
     for k, a in enumerate((3.0, -2.5, 4.0, -1.8)):

@@ -104,7 +104,8 @@ class Reference:
         f, b = (p.f_m, p.b_m) if body == 0 else (p.f_l, p.b_l)
         vs = p.stribeck_velocity / (p.r if body == 0 else 1.0)
         di = self.dir[body]
-        return di * f * (1 + p.friction_asymmetry * di) * (1 + p.stribeck_ratio * math.exp(-(v / vs) ** 2)) \
+        return di * f * (1 + p.friction_asymmetry * di) \
+            * (1 + p.stribeck_ratio * math.exp(-abs(v / vs) ** p.stribeck_shape)) \
             + b * (1 + p.viscous_asymmetry * di) * v
 
     def rhs(self, t, y):
@@ -480,10 +481,13 @@ def test_stribeck_breakaway_is_exact(fmi: int, sign: int) -> None:
         assert not st.motor_stuck and sign * st.q_m > 0
 
 
-def test_stribeck_slide_against_scipy(fmi: int) -> None:
+@pytest.mark.parametrize("shape", [2.0, 1.0, 1.5], ids=["gaussian", "exponential", "delta-1.5"])
+def test_stribeck_slide_against_scipy(fmi: int, shape: float) -> None:
     """Motor breaks away (load held) and slides under the Stribeck law back to rest against its spring; the
-    trajectory matches the independent DOP853 reference, and the friction output matches the formula."""
-    p = NOMINAL.with_values(f_l=1e3, stribeck_ratio=0.8, stribeck_velocity=2e-4, friction_asymmetry=0.15, b_m=5e-5)
+    trajectory matches the independent DOP853 reference, and the friction output matches the formula, for the
+    default Gaussian decay and for other exponents ``stribeck_shape``."""
+    p = NOMINAL.with_values(f_l=1e3, stribeck_ratio=0.8, stribeck_velocity=2e-4, friction_asymmetry=0.15, b_m=5e-5,
+                            stribeck_shape=shape)
     level = p.f_m * (1 + 0.15) * (1 + 0.8)
     dt = 2e-4
     torques = np.concatenate([np.full(10, 1.02 * level), np.zeros(140)])
@@ -500,7 +504,7 @@ def test_stribeck_slide_against_scipy(fmi: int) -> None:
     v = out[sliding, 1]
     vs = p.stribeck_velocity / p.r
     di = np.sign(v)
-    F = di * p.f_m * (1 + 0.15 * di) * (1 + 0.8 * np.exp(-(v / vs) ** 2)) + p.b_m * v
+    F = di * p.f_m * (1 + 0.15 * di) * (1 + 0.8 * np.exp(-np.abs(v / vs) ** shape)) + p.b_m * v
     np.testing.assert_allclose(out[sliding, 2], F, rtol=1e-13)
     assert np.any(np.abs(v) < 2 * vs), "the slide never reached the Stribeck range"
 
@@ -749,6 +753,7 @@ def test_general_propagator_matches_closed_form_for_vanishing_effect(fmi: int, e
 @pytest.mark.parametrize("name,value", [("friction_asymmetry", 1.5), ("friction_asymmetry", -1.0),
                                         ("hardening", -1.0), ("b_m", math.nan), ("b_l", -0.1),
                                         ("stribeck_ratio", 11.0), ("stribeck_velocity", 0.0),
+                                        ("stribeck_shape", 0.5), ("stribeck_shape", 4.5),
                                         ("hysteresis_torque", math.inf), ("hysteresis_stiffness", 0.0),
                                         ("kinematic_error", 2.0), ("kinematic_error_phase", math.nan),
                                         ("kinematic_error_4", -1e-6), ("kinematic_error_4_phase", math.inf),

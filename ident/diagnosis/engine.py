@@ -61,7 +61,9 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    its twin (``plugin.twin_of``: viscous friction on the other side of the gear) fits the training data within
    ``SEPARABLE`` noise variances of it (``_twin_doubt``), or when an effect outside the library
    (``plugin.outside_rival``: a ripple of the motor friction along its travel) fits in its place as well, judged the
-   same way (``_outside_doubts``); what is left is localised by regime (*unexplained*), never named.
+   same way (``_outside_doubts``), or when its size depends on a shape the log does not pin or prefers to the
+   library's (``shapes``: the effect refitted in its other shape, e.g. an exponential Stribeck decay in place of the
+   Gaussian; its interval then holds both sizes); what is left is localised by regime (*unexplained*), never named.
 
 Ctrl-C stops a diagnosis at once: worker processes are killed, nothing is written.
 """
@@ -87,6 +89,7 @@ from ..protocols.batch import WorkerPool
 from .models import CandidateFit, Fitted, ModelPlugin
 from .result import Diagnosis, DiagnosisStep, NamedEffect, PublishedReference
 from .screening import DETECTION_POWER, SCREEN_LEVEL, ScoreTest, ranked, screen_table
+from .shapes import judge, shape_task
 from .sizes import SIZE_PROBE, Checks, SizeSearch, search_candidate, search_size, widen
 
 #: one-sided Diebold-Mariano level of the held-back losses
@@ -218,6 +221,7 @@ class _Search:
         self.unresolved: dict[str, dict[str, Any]] = {}   # candidates not fitted and not ruled out since
         self.carried: dict[str, dict[str, float]] = {}   # candidate -> its unknowns where its last refit left them
         self.size_checks: dict[str, Checks] = {}   # named effect -> its size's last check (``sizes``)
+        self.shapes: dict[str, Any] = {}   # named effect -> its refit in its other shape (``shapes``)
         self.constancy: dict[str, Any] = {}   # the final model's constancy check (``_check_constancy``)
         self.reductions: tuple[Fitted, dict[str, Fitted]] | None = None   # backward's last round: model, refits
         self.stage_s: dict[str, float] = {}   # wall seconds per stage (``timed``)
@@ -262,7 +266,23 @@ class _Search:
             final = self._settle(exchanged)
         with timed(self.stage_s, "constancy check"):
             self._check_constancy(final)
+        with timed(self.stage_s, "shape check"):
+            self._check_shapes(final)
         return final
+
+    def _check_shapes(self, final: Fitted) -> None:
+        """Step 7's shape check (``shapes``): each named effect with another shape refitted in it from the final
+        model, on the workers."""
+        names = [e.name for e in self.named if self.plugin.shape_rival_of(e.name)]
+        if not names:
+            return
+        self.say(f"shape check: refitting {', '.join(names)} in its other shape ...")
+        fits = self._map(shape_task, [(self.shared, final, n, self.budget) for n in names], "shape check")
+        for name, fit in zip(names, fits):
+            if isinstance(fit, str):
+                self.notes.append(f"shape check: {name} could not be refitted in its other shape ({fit}); not done")
+            elif fit is not None:
+                self.shapes[name] = fit
 
     def _check_constancy(self, final: Fitted) -> None:
         """Step 7's constancy check: a final model at the noise, refitted on each half of the training data alone
@@ -868,6 +888,10 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
             search.doubts.setdefault(e.name, []).append(mag.doubt)
         if e.name in search.size_checks:
             widen(named[-1], final, search.size_checks[e.name], search.doubts.setdefault(e.name, []))
+        if e.name in search.shapes:
+            rival = search.shapes[e.name]
+            search.notes.append(judge(named[-1], final, rival, SEPARABLE, search.doubts.setdefault(e.name, []),
+                                      plugin.over_noise(rival.model)))
     for name, why in _outside_doubts(plugin, final, [e.name for e in named], search.notes).items():
         search.doubts.setdefault(name, []).append(why)
     over, levels = plugin.over_noise(final), plugin.confident_levels()
@@ -963,7 +987,8 @@ def _summary(named: list[NamedEffect], unexplained: list[dict[str, Any]], over: 
     for e in named:
         sure = "tentatively (" + e.why_tentative + ")" if e.tentative else "confidently"
         out.append(f"{e.name} is named {sure}: {e.magnitude:.4g}{after_number(e.unit)}, 95 % interval "
-                   f"[{e.ci95[0]:.4g}, {e.ci95[1]:.4g}]" + (f" ({e.size_note()})" if e.size_check else ""))
+                   f"[{e.ci95[0]:.4g}, {e.ci95[1]:.4g}]" + (f" ({e.size_note()})" if e.size_check else "")
+                   + (f" ({e.shape_note()})" if e.shape_check else ""))
     if not named:
         out.append("no library effect improves the held-back prediction significantly")
     if constancy.get("checked"):

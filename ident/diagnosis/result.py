@@ -11,6 +11,8 @@ from typing import Any
 
 import pandas as pd
 
+from ..common.units import after_number
+
 
 @dataclass
 class DiagnosisStep:
@@ -60,6 +62,9 @@ class NamedEffect:
     #: the size's last check (``sizes.widen``): per probe the factor the size was held at, that size,
     #: the training cost's change in noise variances, and the local interval the probes were checked against
     size_check: list[dict[str, float]] = field(default_factory=list)
+    #: the size's check against the effect's other shape (``ident.diagnosis.shapes``): the shape in words, its
+    #: size there, the training cost's change in noise variances, whether its refit was unfinished; {} when none
+    shape_check: dict[str, Any] = field(default_factory=dict)
 
     def size_note(self) -> str:
         """What the size probes showed, in words ('' when there were none)."""
@@ -71,10 +76,19 @@ class NamedEffect:
                else "the local interval stands")
         return f"the size held either side, every other unknown refitted: training cost {rises} noise variances; {how}"
 
+    def shape_note(self) -> str:
+        """What the shape check showed, in words ('' when there was none)."""
+        c = self.shape_check
+        if not c:
+            return ""
+        return (f"refitted with {c['shape']}, the size is {c['magnitude']:.4g}{after_number(self.unit)} and the training cost changes by "
+                f"{c['delta_cost']:+.3g} noise variances" + (" (that refit unfinished)" if c["unfinished"] else ""))
+
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "magnitude": self.magnitude, "ci95": list(self.ci95), "unit": self.unit,
                 "evidence": self.evidence, "runner_up": self.runner_up, "margin": self.margin, "params": self.params,
-                "tentative": self.tentative, "why_tentative": self.why_tentative, "size_check": self.size_check}
+                "tentative": self.tentative, "why_tentative": self.why_tentative, "size_check": self.size_check,
+                "shape_check": self.shape_check}
 
 
 @dataclass

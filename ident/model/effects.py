@@ -12,12 +12,14 @@ Equations (SI, load-side angles; ``dir`` is a slipping body's direction, +1 / -1
     tau_s = K_s (d + hardening d^3) + z                       spring torque (hardening = K3/K_s)
     z'    = sigma dd (1 - sgn(dd) z / H),  dd = g v_m - v_l    Dahl hysteresis in parallel (H = 0: off)
     J_m v_m' = T - g tau_s - F_m          J_l v_l' = tau_s - F_l
-    F     = dir f (1 + a dir)(1 + s exp(-(v/v_s)^2)) + b (1 + a_v dir) v   a slipping body's friction
+    F     = dir f (1 + a dir)(1 + s exp(-|v/v_s|^delta)) + b (1 + a_v dir) v   a slipping body's friction
     static band of a stuck body: -f (1 - a)(1 + s) <= N <= f (1 + a)(1 + s)
 
 ``a`` = ``friction_asymmetry``, ``a_v`` = ``viscous_asymmetry`` (the viscous coefficient is b (1 + a_v) moving
 forwards, b (1 - a_v) backwards; both bodies), ``s`` = ``stribeck_ratio``, ``v_s`` = ``stribeck_velocity`` on the
-load side and ``stribeck_velocity / r`` on the motor side, ``b`` = ``b_m`` / ``b_l``.
+load side and ``stribeck_velocity / r`` on the motor side, ``delta`` = ``stribeck_shape`` (2, the default: a Gaussian
+decay; 1: an exponential one; the diagnosis fits the Gaussian and checks a named size against the exponential),
+``b`` = ``b_m`` / ``b_l``.
 
 The rigid model (one body seen through the motor encoder, e.g. a linear axis in N and m) uses the same friction
 law: ``T = M q'' + F(q') + offset``; with both asymmetries it is the EMPS paper's ``Fc+, Fc-, Fv+, Fv-`` model
@@ -74,12 +76,21 @@ def friction_level(direction: Any, f: Any, asymmetry: Any = 0.0) -> Any:
 
 
 def sliding_friction(v: Any, f: Any, *, b: Any = 0.0, asymmetry: Any = 0.0, stribeck_ratio: Any = 0.0,
-                     stribeck_velocity: Any = 1.0, viscous_asymmetry: Any = 0.0, direction: Any | None = None) -> Any:
+                     stribeck_velocity: Any = 1.0, viscous_asymmetry: Any = 0.0, direction: Any | None = None,
+                     stribeck_shape: Any = 2.0) -> Any:
     """Friction torque on a slipping body (the term subtracted in J v' = ... - F):
-    dir f (1 + a dir)(1 + s exp(-(v/v_s)^2)) + b (1 + a_v dir) v; ``direction`` defaults to sgn(v)."""
+    dir f (1 + a dir)(1 + s exp(-|v/v_s|^delta)) + b (1 + a_v dir) v; ``direction`` defaults to sgn(v)."""
     dirn = ca.sign(v) if direction is None else direction
-    return dirn * friction_level(dirn, f, asymmetry) * (1 + stribeck_ratio * ca.exp(-(v / stribeck_velocity) ** 2)) \
+    return dirn * friction_level(dirn, f, asymmetry) * (1 + stribeck_ratio * stribeck_decay(v / stribeck_velocity,
+                                                                                          stribeck_shape)) \
         + b * (1 + viscous_asymmetry * dirn) * v
+
+
+def stribeck_decay(x: Any, shape: Any = 2.0) -> Any:
+    """exp(-|x|^delta), x = v / v_s; the default delta = 2 as exp(-x^2) (the FMU computes it so too)."""
+    if isinstance(shape, (int, float)) and shape == 2.0:
+        return ca.exp(-x ** 2)
+    return ca.exp(-ca.fabs(x) ** shape)
 
 
 def static_band(f: Any, asymmetry: Any = 0.0, stribeck_ratio: Any = 0.0) -> tuple[Any, Any]:
@@ -99,7 +110,7 @@ def slip_dynamics(params: dict[str, Any]) -> ca.Function:
     g = transmission(q_m, p["r"], kin)
     tau = spring_torque(d, p["K_s"], p["hardening"], z)
     common = dict(asymmetry=p["friction_asymmetry"], stribeck_ratio=p["stribeck_ratio"],
-                  viscous_asymmetry=p["viscous_asymmetry"])
+                  viscous_asymmetry=p["viscous_asymmetry"], stribeck_shape=p["stribeck_shape"])
     F_m = sliding_friction(v_m, p["f_m"], b=p["b_m"], stribeck_velocity=p["stribeck_velocity"] / p["r"], **common)
     F_l = sliding_friction(v_l, p["f_l"], b=p["b_l"], stribeck_velocity=p["stribeck_velocity"], **common)
     H = p["hysteresis_torque"]
@@ -129,6 +140,7 @@ EFFECT_DEFAULTS: dict[str, float] = {
     "b_m": 0.0, "b_l": 0.0, "stribeck_ratio": 0.0, "stribeck_velocity": 1e-3, "friction_asymmetry": 0.0,
     "hardening": 0.0, "hysteresis_torque": 0.0, "hysteresis_stiffness": 1.0e4, "kinematic_error": 0.0,
     "kinematic_error_phase": 0.0, "viscous_asymmetry": 0.0, "kinematic_error_4": 0.0, "kinematic_error_4_phase": 0.0,
+    "stribeck_shape": 2.0,
 }
 #: the kinematic error's FMU parameters, in the order of ``kin`` above: (A, phi, A4, phi4)
 KINEMATIC_ERROR_PARAMS = ("kinematic_error", "kinematic_error_phase", "kinematic_error_4", "kinematic_error_4_phase")

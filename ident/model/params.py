@@ -67,6 +67,7 @@ class DriveParams:
     viscous_asymmetry: float = V.BY_NAME["viscous_asymmetry"].start  # viscous coefficients b (1 +- a_v) for +- motion
     kinematic_error_4: float = V.BY_NAME["kinematic_error_4"].start  # rad, its 4/rev harmonic (load side)
     kinematic_error_4_phase: float = V.BY_NAME["kinematic_error_4_phase"].start  # rad
+    stribeck_shape: float = V.BY_NAME["stribeck_shape"].start  # exponent delta of the decay: 2 Gaussian, 1 exponential
 
     def __post_init__(self) -> None:
         for f in fields(self):

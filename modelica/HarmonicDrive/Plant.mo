@@ -27,6 +27,7 @@ model Plant "Harmonic-drive plant: two inertias, gear ratio r = q_l/q_m, flexspl
   parameter Real viscous_asymmetry(unit = "1", min = -0.99, max = 0.99) = 0.0 "Viscous coefficients b (1 + a_v) for positive, b (1 - a_v) for negative motion";
   parameter Real kinematic_error_4(unit = "rad", min = 0.0, max = 1.0) = 0.0 "Amplitude A4 of the error's second harmonic, four times per wave-generator turn";
   parameter Real kinematic_error_4_phase(unit = "rad", min = -10.0, max = 10.0) = 0.0 "Phase phi4 of the second harmonic";
+  parameter Real stribeck_shape(unit = "1", min = 1.0, max = 4.0) = 2.0 "Exponent delta of the Stribeck decay exp(-|v/vs|^delta): 2 Gaussian, 1 exponential";
 
   // Initial state
   parameter Real q_m_start(unit = "rad", min = -1e6, max = 1e6) = 0.0 "Initial motor angle";
@@ -98,8 +99,8 @@ equation
   // Friction: a stuck body's friction balances its net torque exactly (so its velocity stays exactly zero);
   // a slipping body's friction is its (asymmetric) Coulomb level with the Stribeck rise against the slip
   // direction, plus viscous friction (its coefficient b (1 + viscous_asymmetry*mode) depends on the direction too).
-  motor_friction_torque = if mode_m == 0 then tau_m else mode_m*f_m*(1 + friction_asymmetry*mode_m)*(1 + stribeck_ratio*exp(-(v_m*r/stribeck_velocity)^2)) + b_m*(1 + viscous_asymmetry*mode_m)*v_m;
-  load_friction_torque = if mode_l == 0 then tau_l else mode_l*f_l*(1 + friction_asymmetry*mode_l)*(1 + stribeck_ratio*exp(-(v_l/stribeck_velocity)^2)) + b_l*(1 + viscous_asymmetry*mode_l)*v_l;
+  motor_friction_torque = if mode_m == 0 then tau_m else mode_m*f_m*(1 + friction_asymmetry*mode_m)*(1 + stribeck_ratio*exp(-abs(v_m*r/stribeck_velocity)^stribeck_shape)) + b_m*(1 + viscous_asymmetry*mode_m)*v_m;
+  load_friction_torque = if mode_l == 0 then tau_l else mode_l*f_l*(1 + friction_asymmetry*mode_l)*(1 + stribeck_ratio*exp(-abs(v_l/stribeck_velocity)^stribeck_shape)) + b_l*(1 + viscous_asymmetry*mode_l)*v_l;
 
   der(q_m) = v_m;
   der(q_l) = v_l;
@@ -153,7 +154,7 @@ saturated to the Integer (int32) range, input_work = integral of motor_torque v_
 The same parameters as the FMU (value references 100+): viscous friction <code>b_m</code>, <code>b_l</code>,
 direction-dependent as b (1 &plusmn; <code>viscous_asymmetry</code>);
 Stribeck friction (<code>stribeck_ratio</code> s, <code>stribeck_velocity</code> vs, load side, vs/r on the
-motor); asymmetric levels f (1 &plusmn; <code>friction_asymmetry</code>); a hardening spring
+motor; the decay exp(-|v/vs|^delta), <code>stribeck_shape</code> delta: 2 Gaussian, 1 exponential); asymmetric levels f (1 &plusmn; <code>friction_asymmetry</code>); a hardening spring
 K_s (d + <code>hardening</code> d^3); a Dahl hysteresis element z' = sigma dd (1 - sgn(dd) z/H) in parallel
 with the spring (<code>hysteresis_torque</code> H, <code>hysteresis_stiffness</code> sigma); a kinematic error
 d = r q_m + A sin(2 q_m + phi) + A4 sin(4 q_m + phi4) - q_l (<code>kinematic_error</code>, <code>kinematic_error_phase</code>,

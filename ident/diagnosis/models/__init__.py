@@ -90,6 +90,19 @@ class Magnitude:
         return bool(np.isfinite(lo) and np.isfinite(hi) and (lo > 0 or hi < 0))
 
 
+@dataclass
+class ShapeFit:
+    """A named effect refitted in another shape (``ModelPlugin.shape_rival``): the model, the effect's size (its
+    magnitude) there with its 95 % interval, the shape in words, and whether the refit used up its budget before it
+    converged (its cost is then an upper bound of the shape's best)."""
+
+    model: Fitted
+    size: float
+    ci95: tuple[float, float]
+    shape: str
+    unfinished: bool = False
+
+
 class ModelPlugin(ABC):
     """The contract between the discrepancy loop and a model (see the module docstring). Instances travel to the
     workers (candidate refits), so they hold data and settings only, never an open FMU."""
@@ -182,6 +195,16 @@ class ModelPlugin(ABC):
     def twin(self, model: Fitted, name: str, budget: float | None) -> Fitted | None:
         """``model`` with ``twin_of``'s rival in place of ``name`` at the carried-over size, refitted from there
         (``budget`` as ``refit``). None: no twin."""
+        return None
+
+    def shape_rival_of(self, name: str) -> str:
+        """The other shape effect ``name``'s size is checked against, in words ('' when it has none): real effects
+        never have the library's exact shape, and where two shapes fit a log alike their sizes may differ."""
+        return ""
+
+    def shape_rival(self, model: Fitted, name: str, budget: float | None) -> ShapeFit | None:
+        """``model`` with effect ``name`` in ``shape_rival_of``'s shape, every unknown refitted from ``model``'s
+        optimum within ``budget`` (as ``refit``). None: no such shape."""
         return None
 
     def outside_rival(self, model: Fitted, names: list[str]) -> tuple[dict[str, float], str, str]:
