@@ -113,6 +113,9 @@ VARIABLES: tuple[Variable, ...] = (
     _param("kinematic_error_4_phase", 112, 0.0, -10.0, 10.0, "rad", "Phase phi4 of the second harmonic"),
     _param("stribeck_shape", 113, 2.0, 1.0, 4.0, "1",
            "Exponent delta of the Stribeck decay exp(-|v/vs|^delta): 2 Gaussian (the default), 1 exponential"),
+    _param("hysteresis_exponent", 114, 1.0, 1.0, 4.0, "1",
+           "Exponent n of the Dahl element z' = sigma dd |1 - sgn(dd) z/H|^n sgn(1 - sgn(dd) z/H): 1 the classic "
+           "Dahl (the default), larger a slower, algebraic approach to H"),
 )
 
 BY_NAME: dict[str, Variable] = {v.name: v for v in VARIABLES}

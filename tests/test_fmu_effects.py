@@ -121,7 +121,8 @@ class Reference:
                 dy[2 + i] = (N[i] - self.friction(i, v[i])) / J[i]
         if p.hysteresis_torque > 0:
             dd = g * v[0] - v[1]
-            dy[4] = p.hysteresis_stiffness * dd * (1 - self.hdir * y[4] / p.hysteresis_torque)
+            u = 1 - self.hdir * y[4] / p.hysteresis_torque
+            dy[4] = p.hysteresis_stiffness * dd * abs(u) ** p.hysteresis_exponent * np.sign(u)
         return dy
 
     def decide(self):
@@ -561,8 +562,11 @@ def test_energy_balance_with_effects(fmi: int) -> None:
 
 # ---------------------------------------------------------------------------- 8. cross-check with scipy ----------
 
-def test_all_effects_against_scipy_reference(fmi: int) -> None:
-    p = NOMINAL.with_values(**ALL_ON)
+@pytest.mark.parametrize("exponent", [1.0, 2.0, 1.5], ids=["dahl", "dahl-2", "dahl-1.5"])
+def test_all_effects_against_scipy_reference(fmi: int, exponent: float) -> None:
+    """Every effect on (the Dahl element at the default exponent 1 and at others, ``hysteresis_exponent``): the
+    trajectory and the hysteresis state against the independent DOP853 reference."""
+    p = NOMINAL.with_values(**ALL_ON, hysteresis_exponent=exponent)
     dt = 2e-4
     u = pulse_train(p, dt, 0.16)
     with Plant(p, fmi_version=fmi, q_l_start=Q_L_EQ) as plant:
@@ -754,6 +758,7 @@ def test_general_propagator_matches_closed_form_for_vanishing_effect(fmi: int, e
                                         ("hardening", -1.0), ("b_m", math.nan), ("b_l", -0.1),
                                         ("stribeck_ratio", 11.0), ("stribeck_velocity", 0.0),
                                         ("stribeck_shape", 0.5), ("stribeck_shape", 4.5),
+                                        ("hysteresis_exponent", 0.9), ("hysteresis_exponent", math.nan),
                                         ("hysteresis_torque", math.inf), ("hysteresis_stiffness", 0.0),
                                         ("kinematic_error", 2.0), ("kinematic_error_phase", math.nan),
                                         ("kinematic_error_4", -1e-6), ("kinematic_error_4_phase", math.inf),

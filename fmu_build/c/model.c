@@ -370,14 +370,43 @@ typedef struct {
     double N_m, N_l, F_m, F_l, a_m, a_l;
 } FxForces;
 
-/* z on the current Dahl branch: the exact solution of z' = sigma dd (1 - dir z/H) with dir held, as a function of
- * the twist: z = z0 + (z0 - dir H) expm1(-sigma dir (d - d0)/H), exactly z0 at the anchor d0. */
+/* z on the current Dahl branch: the exact solution of z' = sigma dd u^n, u = 1 - dir z/H, with dir held, as a
+ * function of the twist, exactly z0 at the anchor d0. With x = sigma dir (d - d0)/H (>= 0 along the branch) and
+ * u0 = 1 - dir z0/H, du/dx = -u^n gives
+ *   n = 1 (the default):  z = z0 + (z0 - dir H) expm1(-x);
+ *   n > 1:                u = u0 (1 + (n - 1) u0^(n-1) x)^(-1/(n-1)),
+ *                         z = z0 - dir H u0 expm1(-log1p((n - 1) u0^(n-1) x) / (n - 1))
+ * (an algebraic approach to dir H; the n -> 1 limit is the exponential). */
 static double hysteresis_z(const HDModel *m, double d) {
     double H = m->hysteresis_torque;
     if (!(H > 0.0)) return 0.0;
     double dir = m->hyst_dir, x = -m->hysteresis_stiffness * dir * (d - m->hyst_d0) / H;
-    if (x > 50.0) x = 50.0; /* only reachable transiently against the branch, before its event: no overflow */
-    return m->hyst_z0 + (m->hyst_z0 - dir * H) * expm1(x);
+    if (m->hysteresis_exponent == 1.0) {
+        if (x > 50.0) x = 50.0; /* only reachable transiently against the branch, before its event: no overflow */
+        return m->hyst_z0 + (m->hyst_z0 - dir * H) * expm1(x);
+    }
+    double n1 = m->hysteresis_exponent - 1.0, u0 = 1.0 - dir * m->hyst_z0 / H;
+    double a = fmax(-n1 * pow(fmax(u0, 0.0), n1) * x, -1.0);
+    /* e > 50 only transiently against the branch, before its event: no overflow */
+    double e = fmin(-log1p(a) / n1, 50.0);
+    return m->hyst_z0 - dir * H * u0 * expm1(e);
+}
+
+/* The Dahl element's tangent stiffness sigma u^n over sigma where u = 1 - dir z/H reaches 2 (a reversal from the other
+ * saturation), relative to the classic element's: 2^(n-1), exactly 1 for n = 1. */
+static double hysteresis_slope(const HDModel *m) {
+    return m->hysteresis_exponent == 1.0 ? 1.0 : pow(2.0, m->hysteresis_exponent - 1.0);
+}
+
+/* How much faster than the classic Dahl element's (n = 1) an element of exponent n changes near u = left / H:
+ * its relaxation rate sigma |dd| u^(n-1) / H, times (prod_{j<7} (1 + j (n-1)))^(1/7), the growth of its seventh
+ * derivative in x over the exponential's (a step's error grows with it: u^(7) = -(prod) u^(7(n-1)+1) along a
+ * branch). Exactly 1 for n = 1. */
+static double hysteresis_rate_factor(double n, double u) {
+    if (n == 1.0) return 1.0;
+    double prod = 1.0;
+    for (int j = 0; j < 7; j++) prod *= 1.0 + j * (n - 1.0);
+    return pow(u, n - 1.0) * pow(prod, 1.0 / 7.0);
 }
 
 static FxSpring fx_spring(const HDModel *m, double q_m, double q_l) {
@@ -1068,11 +1097,11 @@ static double fx_interior_stop(const HDModel *m, const FxStart *st, const FxEven
 }
 
 /* Longest substep for the bodies that slip: HD_SUBSTEPS_PER_PERIOD per period of their stiffest oscillation (tangent
- * stiffness at the twist d, largest gear factor r + 2A + 4A4; a stuck body takes no part, the other rings against the spring
+ * stiffness at the twist d, the hysteresis element's sigma times hysteresis_slope, largest gear factor r + 2A + 4A4; a stuck body takes no part, the other rings against the spring
  * alone), at most HD_DECAY_FRACTION of a slipping body's viscous time constant J / (b (1 + |a_v|)). */
 static double mode_substep(const HDModel *m, double d, int motor_slips, int load_slips) {
     double K = m->K_s * (1.0 + 3.0 * m->hardening * d * d)
-             + (m->hysteresis_torque > 0.0 ? m->hysteresis_stiffness : 0.0);
+             + (m->hysteresis_torque > 0.0 ? m->hysteresis_stiffness * hysteresis_slope(m) : 0.0);
     double G = m->r + 2.0 * m->kinematic_error + 4.0 * m->kinematic_error_4;
     double w2 = K * ((motor_slips ? G * G / m->J_m : 0.0) + (load_slips ? 1.0 / m->J_l : 0.0));
     double h_max = 2.0 * HD_PI / sqrt(w2) / HD_SUBSTEPS_PER_PERIOD;
@@ -1143,7 +1172,7 @@ static double fx_local_substep(const HDModel *m, double h_sub, const FxForces *f
     if (H > 0.0 && left > 1e-13 * H) {
         double v_m = m->motor_stuck ? 0.0 : m->v_m, v_l = m->load_stuck ? 0.0 : m->v_l;
         double dd = fabs(f.s.g * v_m - v_l) + fabs(f.s.g * f.a_m - f.a_l) * look;
-        double rate = m->hysteresis_stiffness * dd / H;
+        double rate = m->hysteresis_stiffness * dd / H * hysteresis_rate_factor(m->hysteresis_exponent, left / H);
         /* A step's error from a transient grows as its torque times (rate h)^7: a transient of torque `left` on top
          * of the load's torque scale F may take (F / left)^(1/7) times the resolution of a full-size one. */
         double F = H + m->f_l + fabs(f.s.tau), resolution = HD_TRANSIENT_RESOLUTION * fmax(1.0, pow(F / left, 1.0 / 7));

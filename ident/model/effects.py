@@ -10,7 +10,7 @@ Equations (SI, load-side angles; ``dir`` is a slipping body's direction, +1 / -1
     e     = A sin(2 q_m + phi) + A4 sin(4 q_m + phi4)         twice and four times per wave-generator turn
     g     = r + e'(q_m)                                       d(d)/d(q_m): the transmission seen by the motor
     tau_s = K_s (d + hardening d^3) + z                       spring torque (hardening = K3/K_s)
-    z'    = sigma dd (1 - sgn(dd) z / H),  dd = g v_m - v_l    Dahl hysteresis in parallel (H = 0: off)
+    z'    = sigma dd |1 - sgn(dd) z/H|^n sgn(1 - sgn(dd) z/H),  dd = g v_m - v_l   Dahl hysteresis (H = 0: off)
     J_m v_m' = T - g tau_s - F_m          J_l v_l' = tau_s - F_l
     F     = dir f (1 + a dir)(1 + s exp(-|v/v_s|^delta)) + b (1 + a_v dir) v   a slipping body's friction
     static band of a stuck body: -f (1 - a)(1 + s) <= N <= f (1 + a)(1 + s)
@@ -19,7 +19,8 @@ Equations (SI, load-side angles; ``dir`` is a slipping body's direction, +1 / -1
 forwards, b (1 - a_v) backwards; both bodies), ``s`` = ``stribeck_ratio``, ``v_s`` = ``stribeck_velocity`` on the
 load side and ``stribeck_velocity / r`` on the motor side, ``delta`` = ``stribeck_shape`` (2, the default: a Gaussian
 decay; 1: an exponential one; the diagnosis fits the Gaussian and checks a named size against the exponential),
-``b`` = ``b_m`` / ``b_l``.
+``b`` = ``b_m`` / ``b_l``, ``n`` = ``hysteresis_exponent`` (1, the default: the classic Dahl element, an exponential
+approach to H along a branch; larger: an algebraic one).
 
 The rigid model (one body seen through the motor encoder, e.g. a linear axis in N and m) uses the same friction
 law: ``T = M q'' + F(q') + offset``; with both asymmetries it is the EMPS paper's ``Fc+, Fc-, Fv+, Fv-`` model
@@ -65,9 +66,13 @@ def spring_torque(d: Any, K_s: Any, hardening: Any = 0.0, z: Any = 0.0) -> Any:
     return K_s * (d + hardening * d**3) + z
 
 
-def hysteresis_rate(z: Any, dd: Any, sigma: Any, H: Any) -> Any:
-    """Dahl element: z' = sigma dd (1 - sgn(dd) z / H) [N m/s]; dd is the deflection rate."""
-    return sigma * (dd - ca.fabs(dd) * z / H)
+def hysteresis_rate(z: Any, dd: Any, sigma: Any, H: Any, exponent: Any = 1.0) -> Any:
+    """Dahl element: z' = sigma dd |1 - sgn(dd) z/H|^n sgn(1 - sgn(dd) z/H) [N m/s]; dd is the deflection rate; the
+    default n = 1 as sigma (dd - |dd| z/H)."""
+    if isinstance(exponent, (int, float)) and exponent == 1.0:
+        return sigma * (dd - ca.fabs(dd) * z / H)
+    u = 1 - ca.sign(dd) * z / H
+    return sigma * dd * ca.fabs(u) ** exponent * ca.sign(u)
 
 
 def friction_level(direction: Any, f: Any, asymmetry: Any = 0.0) -> Any:
@@ -114,7 +119,8 @@ def slip_dynamics(params: dict[str, Any]) -> ca.Function:
     F_m = sliding_friction(v_m, p["f_m"], b=p["b_m"], stribeck_velocity=p["stribeck_velocity"] / p["r"], **common)
     F_l = sliding_friction(v_l, p["f_l"], b=p["b_l"], stribeck_velocity=p["stribeck_velocity"], **common)
     H = p["hysteresis_torque"]
-    dz = hysteresis_rate(z, g * v_m - v_l, p["hysteresis_stiffness"], H) if _nonzero(H) else 0 * z
+    dz = hysteresis_rate(z, g * v_m - v_l, p["hysteresis_stiffness"], H, p["hysteresis_exponent"]) \
+        if _nonzero(H) else 0 * z
     xdot = ca.vertcat(v_m, v_l, (u - g * tau - F_m) / p["J_m"], (tau - F_l) / p["J_l"], dz)
     return ca.Function("slip_dynamics", [x, u], [xdot, ca.vertcat(d, tau, F_m, F_l)], ["x", "T"], ["xdot", "y"])
 
@@ -140,7 +146,7 @@ EFFECT_DEFAULTS: dict[str, float] = {
     "b_m": 0.0, "b_l": 0.0, "stribeck_ratio": 0.0, "stribeck_velocity": 1e-3, "friction_asymmetry": 0.0,
     "hardening": 0.0, "hysteresis_torque": 0.0, "hysteresis_stiffness": 1.0e4, "kinematic_error": 0.0,
     "kinematic_error_phase": 0.0, "viscous_asymmetry": 0.0, "kinematic_error_4": 0.0, "kinematic_error_4_phase": 0.0,
-    "stribeck_shape": 2.0,
+    "stribeck_shape": 2.0, "hysteresis_exponent": 1.0,
 }
 #: the kinematic error's FMU parameters, in the order of ``kin`` above: (A, phi, A4, phi4)
 KINEMATIC_ERROR_PARAMS = ("kinematic_error", "kinematic_error_phase", "kinematic_error_4", "kinematic_error_4_phase")

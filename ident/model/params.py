@@ -68,6 +68,7 @@ class DriveParams:
     kinematic_error_4: float = V.BY_NAME["kinematic_error_4"].start  # rad, its 4/rev harmonic (load side)
     kinematic_error_4_phase: float = V.BY_NAME["kinematic_error_4_phase"].start  # rad
     stribeck_shape: float = V.BY_NAME["stribeck_shape"].start  # exponent delta of the decay: 2 Gaussian, 1 exponential
+    hysteresis_exponent: float = V.BY_NAME["hysteresis_exponent"].start  # Dahl exponent n (1: the classic element)
 
     def __post_init__(self) -> None:
         for f in fields(self):

@@ -28,6 +28,7 @@ model Plant "Harmonic-drive plant: two inertias, gear ratio r = q_l/q_m, flexspl
   parameter Real kinematic_error_4(unit = "rad", min = 0.0, max = 1.0) = 0.0 "Amplitude A4 of the error's second harmonic, four times per wave-generator turn";
   parameter Real kinematic_error_4_phase(unit = "rad", min = -10.0, max = 10.0) = 0.0 "Phase phi4 of the second harmonic";
   parameter Real stribeck_shape(unit = "1", min = 1.0, max = 4.0) = 2.0 "Exponent delta of the Stribeck decay exp(-|v/vs|^delta): 2 Gaussian, 1 exponential";
+  parameter Real hysteresis_exponent(unit = "1", min = 1.0, max = 4.0) = 1.0 "Exponent n of the Dahl element: z' = sigma dd |1 - sgn(dd) z/H|^n sgn(1 - sgn(dd) z/H)";
 
   // Initial state
   parameter Real q_m_start(unit = "rad", min = -1e6, max = 1e6) = 0.0 "Initial motor angle";
@@ -94,7 +95,7 @@ equation
 
   // Dahl hysteresis: z' = sigma dd (1 - sgn(dd) z/H) = sigma (dd - |dd| z/H); off (z = 0) when H = 0.
   dd = g*v_m - v_l;
-  der(hysteresis_state) = if hysteresis_torque > 0 then hysteresis_stiffness*(dd - abs(dd)*hysteresis_state/hysteresis_torque) else 0;
+  der(hysteresis_state) = if hysteresis_torque > 0 then hysteresis_stiffness*dd*abs(1 - sign(dd)*hysteresis_state/hysteresis_torque)^hysteresis_exponent*sign(1 - sign(dd)*hysteresis_state/hysteresis_torque) else 0;
 
   // Friction: a stuck body's friction balances its net torque exactly (so its velocity stays exactly zero);
   // a slipping body's friction is its (asymmetric) Coulomb level with the Stribeck rise against the slip
@@ -155,8 +156,9 @@ The same parameters as the FMU (value references 100+): viscous friction <code>b
 direction-dependent as b (1 &plusmn; <code>viscous_asymmetry</code>);
 Stribeck friction (<code>stribeck_ratio</code> s, <code>stribeck_velocity</code> vs, load side, vs/r on the
 motor; the decay exp(-|v/vs|^delta), <code>stribeck_shape</code> delta: 2 Gaussian, 1 exponential); asymmetric levels f (1 &plusmn; <code>friction_asymmetry</code>); a hardening spring
-K_s (d + <code>hardening</code> d^3); a Dahl hysteresis element z' = sigma dd (1 - sgn(dd) z/H) in parallel
-with the spring (<code>hysteresis_torque</code> H, <code>hysteresis_stiffness</code> sigma); a kinematic error
+K_s (d + <code>hardening</code> d^3); a Dahl hysteresis element z' = sigma dd |1 - sgn(dd) z/H|^n sgn(1 - sgn(dd) z/H) in parallel
+with the spring (<code>hysteresis_torque</code> H, <code>hysteresis_stiffness</code> sigma, <code>hysteresis_exponent</code> n,
+1 by default); a kinematic error
 d = r q_m + A sin(2 q_m + phi) + A4 sin(4 q_m + phi4) - q_l (<code>kinematic_error</code>, <code>kinematic_error_phase</code>,
 <code>kinematic_error_4</code>, <code>kinematic_error_4_phase</code>).
 Then J_m q_m'' = T - g tau_s - F_m, J_l q_l'' = tau_s - F_l with g = r + 2 A cos(2 q_m + phi),
