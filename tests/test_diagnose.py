@@ -6,9 +6,9 @@ code shared with the FMU or ``ident``), in the product's file format, read by ``
 named, every candidate rejected by the screen with its statistic), a hidden hardening of the library's shape (named,
 confident, magnitude within 10 %, its parameters holding between the halves of the log), the same answer serially
 and on two workers, a budget too small to fit it (not named confidently: the candidate is not ruled out), a
-kinematic error with its 4/rev over turns of the motor (named alone, both harmonics within 5 %), a Stribeck decay and a
-Dahl element of other shapes than the library's (the shape check: the size in doubt, the interval holding the truth), the rigid start
-(flexibility passes the same acceptance rule), the command line (JSON on stdout, progress on stderr, the fitted
+kinematic error with its 4/rev over turns of the motor (named alone, both harmonics within 5 %), a Stribeck decay
+and a Dahl element of other shapes than the library's (the shape check: the size in doubt, the interval holding the
+truth), the rigid start (flexibility passes the same acceptance rule), the command line (JSON on stdout, progress on stderr, the fitted
 FMU), Ctrl-C (stops within 2 s with workers running), a friction ripple outside the library fitted in place of a
 named effect, the loop's rules with stand-in plug-ins, and the statistics of the screen and the acceptance rule
 against closed forms. Slow (marked; run with ``-m slow`` and in ``bench/``): the randomized matrix of the issue (166

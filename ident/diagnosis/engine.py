@@ -62,8 +62,8 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    ``SEPARABLE`` noise variances of it (``_twin_doubt``), or when an effect outside the library
    (``plugin.outside_rival``: a ripple of the motor friction along its travel) fits in its place as well, judged the
    same way (``_outside_doubts``), or when its size depends on a shape the log does not pin or prefers to the
-   library's (``shapes``: the effect refitted in its other shape, e.g. an exponential Stribeck decay in place of the
-   Gaussian; its interval then holds both sizes); what is left is localised by regime (*unexplained*), never named.
+   library's (``shapes``: the effect refitted in its other shape, an exponential Stribeck decay in place of the
+   Gaussian, a Dahl element of exponent 2 in place of 1; its interval then holds both sizes); what is left is localised by regime (*unexplained*), never named.
 
 Ctrl-C stops a diagnosis at once: worker processes are killed, nothing is written.
 """

@@ -8,7 +8,8 @@ Gaussian fitted it down to the noise (1.008x training, 1.013x held back), and th
 shape, so nothing in the report warned of it.
 
 So each named effect that has another shape (``ModelPlugin.shape_rival_of``: the Stribeck decay exp(-|v/v_s|^delta)
-at delta = 1, the exponential, beside the library's Gaussian delta = 2) is refitted in it from the final model,
+at delta = 1, the exponential, beside the library's Gaussian delta = 2; the Dahl element of exponent 2 beside the
+library's 1) is refitted in it from the final model,
 every unknown free (``ModelPlugin.shape_rival``, on the workers), and judged by its training cost against the
 final model's, in noise variances (``judge``), with the threshold the loop tells two fits apart by (the engine's
 ``SEPARABLE``: what a one-sided test at the acceptance rule's level detects with 95 % power):
