@@ -8,11 +8,11 @@ confident, magnitude within 10 %, its parameters holding between the halves of t
 and on two workers, a budget too small to fit it (not named confidently: the candidate is not ruled out), a
 kinematic error with its 4/rev over turns of the motor (named alone, both harmonics within 5 %), a Stribeck decay
 and a Dahl element of other shapes than the library's (the shape check: the size in doubt, the interval holding the
-truth), the rigid start (flexibility passes the same acceptance rule), the command line (JSON on stdout, progress on stderr, the fitted
-FMU), Ctrl-C (stops within 2 s with workers running), a friction ripple outside the library fitted in place of a
-named effect, the loop's rules with stand-in plug-ins, and the statistics of the screen and the acceptance rule
-against closed forms. Slow (marked; run with ``-m slow`` and in ``bench/``): the randomized matrix of the issue (166
-logs, ``test_matrix`` and ``bench/diagnose.py``) and the constancy check on two 10 s logs.
+truth), the rigid start (flexibility passes the same acceptance rule), the command line (JSON on stdout, progress on
+stderr, the fitted FMU), Ctrl-C (stops within 2 s with workers running), a friction ripple outside the library
+fitted in place of a named effect, the loop's rules with stand-in plug-ins, and the statistics of the screen and the
+acceptance rule against closed forms. Slow (marked; run with ``-m slow`` and in ``bench/``): the randomized matrix
+of the issue (166 logs, ``test_matrix`` and ``bench/diagnose.py``) and the constancy check on two 10 s logs.
 """
 from __future__ import annotations
 
@@ -453,26 +453,34 @@ def test_a_size_that_depends_on_the_effects_shape_is_tentative_and_its_interval_
 
 
 def test_the_shape_check_refits_each_named_effect_that_has_another_shape() -> None:
-    """The loop's shape check (``_Search._check_shapes``) refits, on the workers, each named effect that has another
-    shape, on a final model at the noise and on one above it (a misfit there may be the shape's); a refit that
-    failed is said in the notes and the check left undone."""
+    """The loop's shape check (in ``_Search._final_checks``, one batch with the constancy check) refits, on the
+    workers, each named effect that has another shape, on a final model at the noise and on one above it (a misfit
+    there may be the shape's); a refit that failed is said in the notes and the check left undone."""
     from ident.diagnosis import CONFIDENT_OVER_NOISE
     from ident.diagnosis.engine import _Say, _Search
     from ident.diagnosis.result import NamedEffect
 
     class Plugin:
         @staticmethod
+        def over_noise(model: Fitted) -> tuple[float, float]:
+            return model.metrics["over"]
+
+        @staticmethod
+        def confident_levels() -> tuple[float, float]:
+            return CONFIDENT_OVER_NOISE, CONFIDENT_OVER_NOISE
+
+        @staticmethod
         def shape_rival_of(name: str) -> str:
             return "another decay" if name == "stribeck" else ""
 
-    for over in ((1.0, 1.0), (CONFIDENT_OVER_NOISE * 1.5, 1.0)):
-        pool = _Pool(["RuntimeError: no"])
+    for over, halves in (((1.0, 1.0), True), ((CONFIDENT_OVER_NOISE * 1.5, 1.0), False)):
+        pool = _Pool([None, None, "RuntimeError: no"] if halves else ["RuntimeError: no"])
         search = _Search(Plugin(), pool, 5.0, 3, _Say(False))
         search.named = [NamedEffect(n, 1.0, (0.9, 1.1), "", "", None, None) for n in ("hysteresis", "stribeck")]
-        search._check_shapes(Fitted(("hysteresis", "stribeck"), 100.0, 100.0, np.ones(10), 100, 8, {"over": over}))
-        assert [t[2] for t in pool.tasks] == ["stribeck"], (over, pool.tasks)
+        search._final_checks(Fitted(("hysteresis", "stribeck"), 100.0, 100.0, np.ones(10), 100, 8, {"over": over}))
+        assert [t[1][2] for t in pool.tasks] == ([0, 1] if halves else []) + ["stribeck"], (over, pool.tasks)
         assert any("could not be refitted in its other shape (RuntimeError: no)" in n for n in search.notes)
-        assert search.shapes == {}
+        assert search.shapes == {} and bool(search.constancy) == halves
 
 
 def test_the_size_search_follows_the_profile_and_checks_where_it_ends() -> None:
@@ -1166,7 +1174,7 @@ def test_the_size_search_counts_chance_with_the_residuals_correlation() -> None:
 
 
 def test_the_constancy_check_refits_each_half_and_a_moving_model_names_nothing_confidently() -> None:
-    """``_Search._check_constancy`` with a stand-in plug-in (the real one, through the FMU, runs on every diagnosis
+    """The constancy check (in ``_Search._final_checks``) with a stand-in plug-in (the real one, through the FMU, runs on every diagnosis
     at the noise: the hardening test above, and on two 10 s logs in the slow test below): a final model at the noise
     with a name is refitted on each half (two tasks on the workers), the Wald statistic's chi-square p-value is
     recorded; below ``DM_LEVEL`` every name is tentative with the numbers and the summary says a shape may remain,
@@ -1194,17 +1202,21 @@ def test_the_constancy_check_refits_each_half_and_a_moving_model_names_nothing_c
             assert (first, second) == ("half 0", "half 1")
             return self.wald, 5
 
+        @staticmethod
+        def shape_rival_of(name: str) -> str:
+            return ""
+
     def check(over: float, wald: float, halves: list, named: bool = True) -> tuple[_Search, _Pool]:
         pool = _Pool(halves)
         search = _Search(Plugin(over, wald), pool, None, 3, _Say(False))
         search.named = [NamedEffect("hysteresis", math.nan, (math.nan, math.nan), "", "", None, None)] if named else []
-        search._check_constancy(final)
+        search._final_checks(final)
         return search, pool
 
     for wald, holds in ((47.7, False), (0.98, True)):   # the two 10 s logs' statistics (slow test below)
         search, pool = check(1.0, wald, ["half 0", "half 1"])
         c = search.constancy
-        assert [t[2] for t in pool.tasks] == [0, 1] and c["checked"] and c["df"] == 5 and c["level"] == DM_LEVEL
+        assert [t[1][2] for t in pool.tasks] == [0, 1] and c["checked"] and c["df"] == 5 and c["level"] == DM_LEVEL
         assert c["p_value"] == pytest.approx(stats.chi2.sf(wald, 5), rel=1e-12)
         reasons = _reasons(search, (1.0, 1.0), (CONFIDENT_OVER_NOISE, CONFIDENT_OVER_NOISE))
         summary = _summary([], [], (1.0, 1.0), (CONFIDENT_OVER_NOISE, CONFIDENT_OVER_NOISE), [], c)
@@ -1227,7 +1239,7 @@ def test_the_constancy_check_refits_each_half_and_a_moving_model_names_nothing_c
 
 @pytest.mark.slow
 def test_a_final_model_that_does_not_hold_along_the_log_names_nothing_confidently() -> None:
-    """The constancy check (``engine._Search._check_constancy``): the final model at the noise, refitted on each
+    """The constancy check (``engine._Search._final_checks``): the final model at the noise, refitted on each
     half of the training data alone, must keep its parameters (Wald test at p < 0.01). A hidden Dahl hysteresis of
     exponent 2 (the library's is exponent 1) is fitted to the noise by the library's, but its parameters move
     between the halves: named tentatively, and the report says a shape may remain. With exponent 1 (the library's

@@ -44,7 +44,7 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
 7. **Say how sure**: a named effect is tentative when the final model leaves the sensor's residual above its level
    times its noise (``plugin.confident_levels``: what a model reproducing its log exceeds by chance with probability
    ``CONFIDENT_ALPHA``, at most ``CONFIDENT_OVER_NOISE``; a shape the library does not have, or an effect outside it),
-   when the final model, though at the noise, does not hold along the log (``_check_constancy``: refitted on each half
+   when the final model, though at the noise, does not hold along the log (``_final_checks``: refitted on each half
    of the training data alone, its drive and effect parameters differ by a Wald test at ``DM_LEVEL``; an effect the
    library has keeps its size, while a stand-in for one it lacks, e.g. asymmetric friction for a friction ripple
    periodic in the motor angle, follows what each half visits), when a candidate was not ruled out, when the model it
@@ -63,7 +63,8 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    (``plugin.outside_rival``: a ripple of the motor friction along its travel) fits in its place as well, judged the
    same way (``_outside_doubts``), or when its size depends on a shape the log does not pin or prefers to the
    library's (``shapes``: the effect refitted in its other shape, an exponential Stribeck decay in place of the
-   Gaussian, a Dahl element of exponent 2 in place of 1; its interval then holds both sizes); what is left is localised by regime (*unexplained*), never named.
+   Gaussian, a Dahl element of exponent 2 in place of 1; its interval then holds both sizes); what is left is
+   localised by regime (*unexplained*), never named.
 
 Ctrl-C stops a diagnosis at once: worker processes are killed, nothing is written.
 """
@@ -201,6 +202,12 @@ def _half_task(args: tuple) -> Fitted | None:
     return out
 
 
+def _call(args: tuple) -> Any:
+    """``fn(task)`` for ``(fn, task)``: one batch of different checks on the workers (``_Search._final_checks``)."""
+    fn, task = args
+    return fn(task)
+
+
 def _without_task(args: tuple) -> Fitted:
     plugin, model, name, budget = args
     return plugin.without(model, name, budget)
@@ -222,7 +229,7 @@ class _Search:
         self.carried: dict[str, dict[str, float]] = {}   # candidate -> its unknowns where its last refit left them
         self.size_checks: dict[str, Checks] = {}   # named effect -> its size's last check (``sizes``)
         self.shapes: dict[str, Any] = {}   # named effect -> its refit in its other shape (``shapes``)
-        self.constancy: dict[str, Any] = {}   # the final model's constancy check (``_check_constancy``)
+        self.constancy: dict[str, Any] = {}   # the final model's constancy check (``_final_checks``)
         self.reductions: tuple[Fitted, dict[str, Fitted]] | None = None   # backward's last round: model, refits
         self.stage_s: dict[str, float] = {}   # wall seconds per stage (``timed``)
 
@@ -264,35 +271,37 @@ class _Search:
                 exchanged = self._backward(exchanged)
         with timed(self.stage_s, "size search"):
             final = self._settle(exchanged)
-        with timed(self.stage_s, "constancy check"):
-            self._check_constancy(final)
-        with timed(self.stage_s, "shape check"):
-            self._check_shapes(final)
+        with timed(self.stage_s, "constancy and shape checks"):
+            self._final_checks(final)
         return final
 
-    def _check_shapes(self, final: Fitted) -> None:
-        """Step 7's shape check (``shapes``): each named effect with another shape refitted in it from the final
-        model, on the workers."""
-        names = [e.name for e in self.named if self.plugin.shape_rival_of(e.name)]
-        if not names:
+    def _final_checks(self, final: Fitted) -> None:
+        """Step 7's checks of the final model, in one batch on the workers (each a refit or two of it, so that the
+        two cores share them): the constancy check (a final model at the noise, refitted on each half of the training
+        data alone, ``plugin.half``; the Wald test of equal parameters, ``plugin.constancy``; only such a model needs
+        it: above the noise every name is tentative already) and the shape check (``shapes``: each named effect with
+        another shape refitted in it, ``plugin.shape_rival``)."""
+        over = self.plugin.over_noise(final)
+        halves = bool(self.named) and over is not None and not above_level(over, self.plugin.confident_levels())
+        shapes = [e.name for e in self.named if self.plugin.shape_rival_of(e.name)]
+        tasks = [(_half_task, (self.shared, final, w, self.budget)) for w in ((0, 1) if halves else ())]
+        tasks += [(shape_task, (self.shared, final, n, self.budget)) for n in shapes]
+        if not tasks:
             return
-        self.say(f"shape check: refitting {', '.join(names)} in its other shape ...")
-        fits = self._map(shape_task, [(self.shared, final, n, self.budget) for n in names], "shape check")
-        for name, fit in zip(names, fits):
+        self.say("final checks: " + ", ".join((["refitting the final model on each half of the training data"]
+                                                if halves else []) + [f"{n} in its other shape" for n in shapes])
+                 + " ...")
+        out = self._map(_call, tasks, "final checks")
+        if halves:
+            self._constancy(out[:2])
+        for name, fit in zip(shapes, out[2 if halves else 0:]):
             if isinstance(fit, str):
                 self.notes.append(f"shape check: {name} could not be refitted in its other shape ({fit}); not done")
             elif fit is not None:
                 self.shapes[name] = fit
 
-    def _check_constancy(self, final: Fitted) -> None:
-        """Step 7's constancy check: a final model at the noise, refitted on each half of the training data alone
-        (``plugin.half``, on the workers); the Wald test of equal parameters (``plugin.constancy``). Only such a
-        model needs it: above the noise every name is tentative already."""
-        over = self.plugin.over_noise(final)
-        if not self.named or over is None or above_level(over, self.plugin.confident_levels()):
-            return
-        self.say("constancy check: refitting the final model on each half of the training data ...")
-        halves = self._map(_half_task, [(self.shared, final, w, self.budget) for w in (0, 1)], "constancy check")
+    def _constancy(self, halves: list[Fitted | None]) -> None:
+        """The constancy check's verdict from its two refits (``_final_checks``)."""
         if any(h is None for h in halves):
             self.constancy = {"checked": False, "why": "a half could not be refitted within its budget"}
             return
