@@ -82,10 +82,6 @@ FLEXIBILITY = "flexibility"
 #: effects the gear makes near twins (``TwoInertiaPlugin.twin``): effect -> (its twin, its parameter, the twin's, the
 #: power of the ratio r = q_l / q_m that carries the size over: b_m = r^2 b_l)
 TWINS = {"viscous_motor": ("viscous_load", "b_m", "b_l", -2), "viscous_load": ("viscous_motor", "b_l", "b_m", 2)}
-#: seconds per FMU simulation of 10 s at 5 kHz with each effect on (bench/README, "FMU with effects on": the nominal
-#: drive, 2026-11-25): a candidate's refit costs about its effect's simulations, so the workers start the costliest
-#: first (``refit_cost``). Measured on an outside log (a friction ripple): Stribeck refits took 56-65 s, the others
-#: 4-45 s, and a step whose Stribeck refit started fifth waited on it.
 #: the other shape each effect's named size is checked against (``shape_rival``): effect -> (the FMU parameter that
 #: selects it, its value there, the shape in words, shifts of the effect's coordinates for the rival's start).
 #: Stribeck: the decay exp(-|v/v_s|^delta) of the generalised Stribeck law (Armstrong-Helouvry's exponent) at
@@ -96,7 +92,8 @@ TWINS = {"viscous_motor": ("viscous_load", "b_m", "b_l", -2), "viscous_load": ("
 #: and a confident interval that missed the truth. Hysteresis: Dahl's element of exponent n = 2 (an algebraic
 #: approach to its saturation torque) beside the library's n = 1 (an exponential one); it starts with the same
 #: saturation torque and initial stiffness. Measured on the independent generator's logs of drive 5103, whose Dahl
-#: exponent is 2: the library's sizes were 15-22 % low, two of them confident with intervals that missed.
+#: exponent is 2: the library's sizes were 15-22 % low on five of the six (66 % on the sixth, above the noise), two
+#: of them confident with intervals that missed.
 SHAPES = {
     "stribeck": ("stribeck_shape", 1.0, "an exponential Stribeck decay exp(-|v/v_s|) (stribeck_shape = 1) in place "
                  "of the library's Gaussian exp(-(v/v_s)^2)",
@@ -104,6 +101,10 @@ SHAPES = {
     "hysteresis": ("hysteresis_exponent", 2.0, "a Dahl element of exponent 2 (hysteresis_exponent = 2: an algebraic "
                    "approach to its saturation torque) in place of the library's exponential one", {}),
 }
+#: seconds per FMU simulation of 10 s at 5 kHz with each effect on (bench/README, "FMU with effects on": the nominal
+#: drive, 2026-11-25): a candidate's refit costs about its effect's simulations, so the workers start the costliest
+#: first (``refit_cost``). Measured on an outside log (a friction ripple): Stribeck refits took 56-65 s, the others
+#: 4-45 s, and a step whose Stribeck refit started fifth waited on it.
 SIMULATION_S = {"viscous_motor": 0.026, "viscous_load": 0.022, "stribeck": 0.094, "asymmetric_friction": 0.026,
                 "hardening": 0.025, "hysteresis": 0.045, "kinematic_error": 0.046}
 
