@@ -144,7 +144,8 @@ def test_plant_raises_clear_python_errors() -> None:
 
 
 def _random_value(rng: np.random.Generator, var: V.Variable) -> tuple[float, bool]:
-    """A value for a parameter: mostly valid (log-uniform near the nominal drive), sometimes unphysical."""
+    """A value for a parameter: mostly valid (log-uniform near the nominal drive, inside the variable's range),
+    sometimes unphysical."""
     u = rng.random()
     if u < 0.04:
         bad = [math.nan, math.inf, -math.inf, var.lo - max(1.0, abs(var.lo)), var.hi * 10] + ([0.0] if var.lo > 0 else [])
@@ -154,7 +155,10 @@ def _random_value(rng: np.random.Generator, var: V.Variable) -> tuple[float, boo
         return float(rng.uniform(-scale, scale)), True
     if var.name in ("f_m", "f_l") and u < 0.08:
         return 0.0, True
-    return float(var.start * 10 ** rng.uniform(-2, 2)) if var.name != "r" else float(10 ** rng.uniform(-3, 0)), True
+    value = float(var.start * 10 ** rng.uniform(-2, 2)) if var.name != "r" else float(10 ** rng.uniform(-3, 0))
+    if not var.lo <= value <= var.hi:   # a range narrower than four decades (an exponent): uniform inside it
+        value = float(rng.uniform(var.lo, var.hi))
+    return value, True
 
 
 def test_random_parameters_inputs_and_steps_never_crash_or_nan() -> None:
