@@ -460,15 +460,7 @@ def test_the_shape_check_refits_each_named_effect_that_has_another_shape() -> No
     from ident.diagnosis.engine import _Say, _Search
     from ident.diagnosis.result import NamedEffect
 
-    class Plugin:
-        @staticmethod
-        def over_noise(model: Fitted) -> tuple[float, float]:
-            return model.metrics["over"]
-
-        @staticmethod
-        def confident_levels() -> tuple[float, float]:
-            return CONFIDENT_OVER_NOISE, CONFIDENT_OVER_NOISE
-
+    class Plugin(_OverInMetrics):
         @staticmethod
         def shape_rival_of(name: str) -> str:
             return "another decay" if name == "stribeck" else ""
@@ -690,15 +682,7 @@ def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None
     from ident.diagnosis.engine import _Say, _Search
     from ident.diagnosis.result import NamedEffect
 
-    class Plugin:
-        @staticmethod
-        def over_noise(model: Fitted) -> tuple[float, float]:
-            return model.metrics["over"]
-
-        @staticmethod
-        def confident_levels() -> tuple[float, float]:
-            return CONFIDENT_OVER_NOISE, CONFIDENT_OVER_NOISE
-
+    class Plugin(_OverInMetrics):
         @staticmethod
         def size_inflation(model: Fitted, name: str) -> float:
             return 1.0
@@ -715,6 +699,21 @@ def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None
         assert (probes == 4) == probed and (probes == 0) == (not probed), (over, probes)
         assert any("size search: not run" in n for n in search.notes) == (not probed)
         assert set(search.size_checks) == ({"stribeck", "hysteresis"} if probed else set())
+
+
+class _OverInMetrics:
+    """A stand-in plug-in's noise levels for the loop's tests: a model's residual over the noise is its metrics'
+    ``over``, read against ``CONFIDENT_OVER_NOISE`` on both parts."""
+
+    @staticmethod
+    def over_noise(model: Fitted) -> tuple[float, float]:
+        return model.metrics["over"]
+
+    @staticmethod
+    def confident_levels() -> tuple[float, float]:
+        from ident.diagnosis import CONFIDENT_OVER_NOISE
+
+        return CONFIDENT_OVER_NOISE, CONFIDENT_OVER_NOISE
 
 
 class _Pool:
