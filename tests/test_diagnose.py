@@ -421,7 +421,8 @@ def test_a_size_that_depends_on_the_effects_shape_is_tentative_and_its_interval_
     cost's change in noise variances against the loop's threshold. A shape the log rejects leaves the size as it is;
     one it prefers, or one it cannot tell apart whose size lies outside the interval, makes the name tentative and
     widens the interval to hold that size; one it cannot tell apart whose size lies inside says the size holds in
-    either shape. A refit that used up its budget is no rejection (its cost is only an upper bound)."""
+    either shape. A refit that used up its budget is no rejection (its cost is only an upper bound), nor is a worse
+    fit from a final model that does not reproduce its log (neither refit need be its shape's best)."""
     from ident.diagnosis.engine import SEPARABLE
     from ident.diagnosis.models import ShapeFit
     from ident.diagnosis.result import NamedEffect
@@ -450,6 +451,12 @@ def test_a_size_that_depends_on_the_effects_shape_is_tentative_and_its_interval_
     assert len(doubts) == 1 and "outside its interval" in doubts[0] and e.ci95 == (0.98 * 0.6, 1.05)
     e, doubts, note = case(-3.0, 1.01)
     assert doubts == [] and e.ci95 == (0.95, 1.05) and note.endswith("the size holds in either shape")
+    # from a final model that does not reproduce its log, a worse fit is no rejection
+    e, doubts = NamedEffect("stribeck", 1.0, (0.95, 1.05), "1", "", None, None), []
+    rival = ShapeFit(Fitted(final.effects, final.train_cost + (SEPARABLE + 1.0) * s2, 0.0, np.ones(1), 7000, 6), 1.6,
+                     (1.5, 1.7), "an exponential decay")
+    note = judge(e, final, rival, SEPARABLE, doubts, None, reproduces=False)
+    assert "no rejection" in doubts[0] and "outside its interval" in doubts[0] and e.ci95 == (0.95, 1.7), note
 
 
 def test_the_shape_check_refits_each_named_effect_that_has_another_shape() -> None:

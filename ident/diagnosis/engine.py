@@ -898,9 +898,10 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
         if e.name in search.size_checks:
             widen(named[-1], final, search.size_checks[e.name], search.doubts.setdefault(e.name, []))
         if e.name in search.shapes:
-            rival = search.shapes[e.name]
+            rival, over = search.shapes[e.name], plugin.over_noise(final)
+            reproduces = not above_level(None if over is None else over[:1], plugin.confident_levels()[:1])
             search.notes.append(judge(named[-1], final, rival, SEPARABLE, search.doubts.setdefault(e.name, []),
-                                      plugin.over_noise(rival.model)))
+                                      plugin.over_noise(rival.model), reproduces))
     for name, why in _outside_doubts(plugin, final, [e.name for e in named], search.notes).items():
         search.doubts.setdefault(name, []).append(why)
     over, levels = plugin.over_noise(final), plugin.confident_levels()

@@ -14,10 +14,14 @@ every unknown free (``ModelPlugin.shape_rival``, on the workers), and judged by 
 final model's, in noise variances (``judge``), with the threshold the loop tells two fits apart by (the engine's
 ``SEPARABLE``: what a one-sided test at the acceptance rule's level detects with 95 % power):
 
-- **the log rejects the other shape** (it fits worse by at least that, its refit converged): the size stands;
+- **the log rejects the other shape** (it fits worse by at least that, its refit converged, and the final model
+  reproduces the training data, within its level of the noise): the size stands;
 - **the log prefers it** (better by at least that): a shape mismatch remains; the name is tentative, and the
   interval is widened to hold the other shape's interval too;
-- **the log cannot tell the two** (in between, or a refit that used up its budget first): where the size in the
+- **the log cannot tell the two** (in between, a refit that used up its budget first, or a worse fit from a final
+  model that does not reproduce the training data: a refit from a model in another basin need not find the other
+  shape's best; measured on drive 5103's torque-step logs, whose Dahl exponent is 2: from the library's fits at
+  1.18x the noise, the exponent-2 refits fitted 500 and 2300 noise variances worse): where the size in the
   other shape lies outside the interval, the size depends on a shape the log does not pin; the name is tentative
   and the interval widened the same way. Where it lies inside, the size holds in either shape.
 
@@ -52,11 +56,12 @@ def shape_task(args: tuple) -> ShapeFit | str | None:
 
 
 def judge(e: NamedEffect, final: Fitted, rival: ShapeFit, separable: float, doubts: list[str],
-          over: tuple[float, float] | None = None) -> str:
+          over: tuple[float, float] | None = None, reproduces: bool = True) -> str:
     """Judge named effect ``e`` of ``final`` against its refit in the other shape (module docstring): record it in
     ``e.shape_check``, append a doubt when the size depends on the shape, widen ``e.ci95`` to hold the other
     shape's interval then, and return the note for the report. ``over``: the rival's residual over the sensor noise
-    (training, held back; None where unknown)."""
+    (training, held back; None where unknown); ``reproduces``: whether the final model reproduces the training data
+    (within its level of the noise)."""
     d = (rival.model.train_cost - final.train_cost) / residual_variance(final)
     e.shape_check = {"shape": rival.shape, "magnitude": rival.size, "ci95": list(rival.ci95), "delta_cost": d,
                      "unfinished": rival.unfinished, "over_noise": None if over is None else list(over)}
@@ -66,8 +71,11 @@ def judge(e: NamedEffect, final: Fitted, rival: ShapeFit, separable: float, doub
            f"{separable:.3g} apart"
            + ("" if over is None else f"; it leaves {over[0]:.4g}x / {over[1]:.4g}x the sensor noise") +
            f") with the size {rival.size:.4g}{unit} (95 % interval [{rival.ci95[0]:.4g}, {rival.ci95[1]:.4g}])")
-    if d >= separable and not rival.unfinished:
+    if d >= separable and not rival.unfinished and reproduces:
         return f"shape check: {e.name}: {fit}: the log rejects that shape"
+    if d >= separable and not rival.unfinished:
+        fit += (", refitted from a final model that does not reproduce this log (no rejection: neither need be its "
+                "shape's best)")
     if d <= -separable:
         doubts.append(f"{fit}: a shape mismatch remains, and the size depends on it")
     elif not e.ci95[0] <= rival.size <= e.ci95[1]:
