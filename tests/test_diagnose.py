@@ -1180,12 +1180,12 @@ def test_the_size_search_counts_chance_with_the_residuals_correlation() -> None:
 
 
 def test_the_constancy_check_refits_each_half_and_a_moving_model_names_nothing_confidently() -> None:
-    """The constancy check (in ``_Search._final_checks``) with a stand-in plug-in (the real one, through the FMU, runs on every diagnosis
-    at the noise: the hardening test above, and on two 10 s logs in the slow test below): a final model at the noise
-    with a name is refitted on each half (two tasks on the workers), the Wald statistic's chi-square p-value is
-    recorded; below ``DM_LEVEL`` every name is tentative with the numbers and the summary says a shape may remain,
-    above it the summary says the parameters hold. Above the noise (every name tentative already) or with nothing
-    named it is not run; a half that could not be refitted leaves it unchecked, and the summary says why."""
+    """The constancy check (in ``_Search._final_checks``) with a stand-in plug-in (the real one, through the FMU, runs
+    on every diagnosis at the noise: the hardening test above, and on two 10 s logs in the slow test below): a final
+    model at the noise with a name is refitted on each half (two tasks on the workers), the Wald statistic's chi-square
+    p-value is recorded; below ``DM_LEVEL`` every name is tentative with the numbers and the summary says a shape may
+    remain, above it the summary says the parameters hold. Above the noise (every name tentative already) or with
+    nothing named it is not run; a half that could not be refitted leaves it unchecked, and the summary says why."""
     from ident.diagnosis import CONFIDENT_OVER_NOISE
     from ident.diagnosis.engine import DM_LEVEL, _reasons, _Say, _Search, _summary
     from ident.diagnosis.result import NamedEffect

@@ -1097,8 +1097,9 @@ static double fx_interior_stop(const HDModel *m, const FxStart *st, const FxEven
 }
 
 /* Longest substep for the bodies that slip: HD_SUBSTEPS_PER_PERIOD per period of their stiffest oscillation (tangent
- * stiffness at the twist d, the hysteresis element's sigma times hysteresis_slope, largest gear factor r + 2A + 4A4; a stuck body takes no part, the other rings against the spring
- * alone), at most HD_DECAY_FRACTION of a slipping body's viscous time constant J / (b (1 + |a_v|)). */
+ * stiffness at the twist d, the hysteresis element's sigma times hysteresis_slope, largest gear factor r + 2A + 4A4;
+ * a stuck body takes no part, the other rings against the spring alone), at most HD_DECAY_FRACTION of a slipping
+ * body's viscous time constant J / (b (1 + |a_v|)). */
 static double mode_substep(const HDModel *m, double d, int motor_slips, int load_slips) {
     double K = m->K_s * (1.0 + 3.0 * m->hardening * d * d)
              + (m->hysteresis_torque > 0.0 ? m->hysteresis_stiffness * hysteresis_slope(m) : 0.0);

@@ -47,7 +47,8 @@ class NamedEffect:
     sure the choice was against the runner-up (``margin``: the runner-up's held-back cost / the winner's).
     ``tentative``: the name is the library's best improvement, not an explanation; ``why_tentative`` says why
     (the final model stays above the noise, a candidate could not be fitted and was not ruled out, the runner-up
-    predicts the held-back data as well, or the log does not pin the effect's size, or its size search moved it)."""
+    predicts the held-back data as well, or the log does not pin the effect's size, or its size search moved it, or
+    its size depends on a shape the log does not pin or prefers to the library's)."""
 
     name: str
     magnitude: float
@@ -63,7 +64,8 @@ class NamedEffect:
     #: the training cost's change in noise variances, and the local interval the probes were checked against
     size_check: list[dict[str, float]] = field(default_factory=list)
     #: the size's check against the effect's other shape (``ident.diagnosis.shapes``): the shape in words, its
-    #: size there, the training cost's change in noise variances, whether its refit was unfinished; {} when none
+    #: size there and 95 % interval, the training cost's change in noise variances, whether its refit was
+    #: unfinished, and the residual it leaves over the noise (training, held back); {} when none
     shape_check: dict[str, Any] = field(default_factory=dict)
 
     def size_note(self) -> str:
@@ -81,8 +83,9 @@ class NamedEffect:
         c = self.shape_check
         if not c:
             return ""
-        return (f"refitted with {c['shape']}, the size is {c['magnitude']:.4g}{after_number(self.unit)} and the training cost changes by "
-                f"{c['delta_cost']:+.3g} noise variances" + (" (that refit unfinished)" if c["unfinished"] else ""))
+        return (f"refitted with {c['shape']}, the size is {c['magnitude']:.4g}{after_number(self.unit)} and the "
+                f"training cost changes by {c['delta_cost']:+.3g} noise variances"
+                + (" (that refit unfinished)" if c["unfinished"] else ""))
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "magnitude": self.magnitude, "ci95": list(self.ci95), "unit": self.unit,
