@@ -25,8 +25,8 @@
  * A slipping body feels F = dir f (1 + a dir)(1 + s exp(-|v/vs|^delta)) + b (1 + a_v dir) v (delta = 2, the
  * default, a Gaussian decay; 1 an exponential one); a stuck body stays stuck
  * while its net torque N lies in [-f (1 - a)(1 + s), f (1 + a)(1 + s)]. The Dahl element
- * z' = sigma dd (1 - sgn(dd) z/H) is solved exactly on each branch of constant sgn(dd): z is a function of d
- * (anchored where the branch began).
+ * z' = sigma dd |1 - sgn(dd) z/H|^n sgn(1 - sgn(dd) z/H) (n = 1 by default) is solved exactly on each branch of
+ * constant sgn(dd): z is a function of d (anchored where the branch began).
  * Each body's stick/slip mode and slip direction and the hysteresis branch are MODES held fixed inside a substep,
  * where the right-hand side is then smooth: Butcher's sixth-order Runge-Kutta method with fixed substeps (90 per
  * period of the stiffest oscillation, at most 0.25 of each viscous or Stribeck time constant; shortened further
@@ -1140,7 +1140,7 @@ static HDStatus fx_substep(const HDModel *m, double h, double *h_sub, char *err,
  * an integer makes |v/vs|^delta non-smooth at v = 0 (its derivatives of order above delta grow without bound there),
  * where the method loses its order: the substeps are then graded, each changing v by at most the resolution times
  * |v| (not less than 1e-3 vs). Measured with delta = 1.5 on a breakaway slide: 3.5e-10 rad from an independent
- * DOP853 integration ungraded, against 1e-10 with a Gaussian or an exponential decay. */
+ * DOP853 integration ungraded, 1.9e-12 graded (the test's bound, met by the Gaussian and the exponential: 1e-10). */
 static double stribeck_cap(double cap, double v, double a, double vs, double h_sub, double rate_max, double range,
                            int graded) {
     if (fabs(v) - fabs(a) * h_sub < range * vs) {
