@@ -2,7 +2,7 @@
 
 Times one simulation of the 7 s training part of a 10 s log at 5 kHz (35,000 samples of a torque-step input, from
 the independent generator of tests/reference) for the base model (closed form) and for each library effect alone
-(the general propagator), with the FMU's model evaluations per sample. Prints a table and writes
+(the general propagator; Stribeck and hysteresis also in the other shape the diagnosis checks them against), with the FMU's model evaluations per sample. Prints a table and writes
 bench/results/log_simulation.json; ``--out`` names another file (e.g. to compare two builds of the FMU, one run per
 checkout: the trajectories' SHA-256 tell whether two builds simulate bit for bit the same).
 
@@ -40,7 +40,10 @@ def effects(base) -> dict[str, dict[str, float]]:
         "asymmetric friction": {"friction_asymmetry": 0.1},
         "hardening": {"hardening": 0.5},
         "Stribeck": {"stribeck_ratio": 1.3, "stribeck_velocity": 1e-3},
+        "Stribeck, exponential decay": {"stribeck_ratio": 1.3, "stribeck_velocity": 1e-3, "stribeck_shape": 1.0},
         "hysteresis": {"hysteresis_torque": 0.1 * base.f_l, "hysteresis_stiffness": 10 * base.K_s},
+        "hysteresis, exponent 2": {"hysteresis_torque": 0.1 * base.f_l, "hysteresis_stiffness": 10 * base.K_s,
+                                   "hysteresis_exponent": 2.0},
         "kinematic error 2/rev": {"kinematic_error": 1e-5, "kinematic_error_phase": 0.3},
         "kinematic error 2/rev + 4/rev": {"kinematic_error": 1e-5, "kinematic_error_4": 3e-6,
                                           "kinematic_error_4_phase": 1.0},

@@ -888,6 +888,8 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
     """The named effects' magnitudes in the final model, how sure each is, what is left, and the summary's
     sentences (each computed from the numbers)."""
     plugin = search.plugin
+    over, levels = plugin.over_noise(final), plugin.confident_levels()
+    reproduces = not above_level(None if over is None else over[:1], levels[:1])   # on the training part
     named = []
     for e in search.named:
         mag = plugin.magnitude(final, e.name)
@@ -898,13 +900,11 @@ def _conclude(search: _Search, final: Fitted) -> tuple[list[NamedEffect], list[d
         if e.name in search.size_checks:
             widen(named[-1], final, search.size_checks[e.name], search.doubts.setdefault(e.name, []))
         if e.name in search.shapes:
-            rival, over = search.shapes[e.name], plugin.over_noise(final)
-            reproduces = not above_level(None if over is None else over[:1], plugin.confident_levels()[:1])
+            rival = search.shapes[e.name]
             search.notes.append(judge(named[-1], final, rival, SEPARABLE, search.doubts.setdefault(e.name, []),
                                       plugin.over_noise(rival.model), reproduces))
     for name, why in _outside_doubts(plugin, final, [e.name for e in named], search.notes).items():
         search.doubts.setdefault(name, []).append(why)
-    over, levels = plugin.over_noise(final), plugin.confident_levels()
     table = plugin.regimes(final)
     unexplained = plugin.unexplained(final, table)
     reasons = _reasons(search, over, levels)

@@ -74,9 +74,9 @@ def judge(e: NamedEffect, final: Fitted, rival: ShapeFit, separable: float, doub
            f"{separable:.3g} apart"
            + ("" if over is None else f"; it leaves {over[0]:.4g}x / {over[1]:.4g}x the sensor noise") +
            f") with the size {rival.size:.4g}{unit} (95 % interval [{rival.ci95[0]:.4g}, {rival.ci95[1]:.4g}])")
-    if d >= separable and not rival.unfinished and reproduces:
-        return f"shape check: {e.name}: {fit}: the log rejects that shape"
     if d >= separable and not rival.unfinished:
+        if reproduces:
+            return f"shape check: {e.name}: {fit}: the log rejects that shape"
         fit += (", refitted from a final model that does not reproduce this log (no rejection: neither need be its "
                 "shape's best)")
     if d <= -separable:

@@ -606,8 +606,9 @@ class TwoInertiaPlugin(ModelPlugin):
         st = model.state
         rival = replace(model, state=replace(st, fixed={**st.fixed, param: value}, sim=None, cov=None, covs=None))
         head = st.theta.copy()
-        for i, c in zip(_effect_indices(model, name), [c for c in _layout(model) if c.effect == name]):
-            head[i] += shifts.get(c.name, 0.0)
+        for i, c in enumerate(_layout(model)):
+            if c.effect == name:
+                head[4 + i] += shifts.get(c.name, 0.0)
         theta, unfinished = self._refitted(rival, model.effects, head, budget)
         out = self.evaluate(model.effects, theta, st.base, st.scales, sens=st.sens, fixed=rival.state.fixed)
         size = self.magnitude(out, name)
