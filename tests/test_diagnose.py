@@ -25,6 +25,7 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -480,6 +481,83 @@ def test_the_shape_check_refits_each_named_effect_that_has_another_shape() -> No
         assert [t[1][2] for t in pool.tasks] == ([0, 1] if halves else []) + ["stribeck"], (over, pool.tasks)
         assert any("could not be refitted in its other shape (RuntimeError: no)" in n for n in search.notes)
         assert search.shapes == {} and bool(search.constancy) == halves
+
+
+def test_an_effect_is_adopted_in_the_shape_the_log_prefers_where_it_is_named() -> None:
+    """Where a step accepts an effect that has another shape (``_Search._adopt_shape``), it is refitted in it at
+    once, and the loop goes on from that refit (converged, as an accepted model is) where it fits the training data
+    better by at least the loop's threshold; a refit within the threshold, a worse one, or one that failed leaves the
+    library's shape, and the notes say which. An effect without another shape is not refitted."""
+    from ident.diagnosis.engine import SEPARABLE, _Say, _Search
+    from ident.diagnosis.models import ShapeFit
+
+    model = Fitted(("stribeck",), 7000.0, 3000.0, np.ones(3000), 7000, 6, {})
+    s2 = model.train_cost / (model.n_train - model.k)
+
+    class Plugin:
+        converged: list = []
+
+        @staticmethod
+        def shape_rival_of(name: str) -> str:
+            return "an exponential decay" if name == "stribeck" else ""
+
+        def converge(self, m: Fitted, budget: float | None, unfinished: bool = False) -> tuple[Fitted, str]:
+            self.converged.append((m, unfinished))
+            return m, "refitted on" if unfinished else ""
+
+    for d, unfinished, adopted in ((-SEPARABLE - 1.0, False, True), (-SEPARABLE - 1.0, True, True),
+                                   (-SEPARABLE + 1.0, False, False), (SEPARABLE + 1.0, False, False)):
+        rival = Fitted(model.effects, model.train_cost + d * s2, 2900.0, np.ones(3000), 7000, 6, {})
+        plugin = Plugin()
+        plugin.converged = []
+        pool = _Pool([ShapeFit(rival, 1.4, (1.3, 1.5), "an exponential decay", unfinished)])
+        search = _Search(plugin, pool, 5.0, 3, _Say(False))
+        out = search._adopt_shape(model, "stribeck", 0)
+        assert (out is rival) == adopted and (out is model) == (not adopted), d
+        assert [t[2] for t in pool.tasks] == ["stribeck"]
+        assert plugin.converged == ([(rival, unfinished)] if adopted else [])
+        assert any(("adopted, the loop goes on from it" if adopted else "the library's shape is kept") in n
+                   and f"training cost {d:+.4g} noise variances" in n for n in search.notes), search.notes
+    search = _Search(Plugin(), _Pool(["RuntimeError: no"]), 5.0, 3, _Say(False))
+    assert search._adopt_shape(model, "stribeck", 0) is model
+    assert search.notes == ["step 1: stribeck could not be refitted in its other shape (RuntimeError: no)"]
+    pool = _Pool()
+    search = _Search(Plugin(), pool, 5.0, 3, _Say(False))
+    assert search._adopt_shape(model, "hysteresis", 0) is model and pool.tasks == [] and search.notes == []
+
+
+def test_a_shape_rival_goes_back_to_the_librarys_shape_from_an_adopted_one(monkeypatch) -> None:
+    """``TwoInertiaPlugin.shape_rival`` from the library's shape holds the FMU's shape parameter at the rival's
+    value and shifts the Stribeck velocity's coordinate to the rival's start; from a model that adopted the rival
+    it lets the parameter go back to the FMU's default (the library's shape) and shifts the coordinate back, and
+    ``shape_of`` says which shape a model has."""
+    from ident.diagnosis.models import two_inertia as ti
+
+    plugin = object.__new__(ti.TwoInertiaPlugin)
+    seen = []
+
+    def refitted(model, effects, head, budget, **kw):
+        seen.append((dict(model.state.fixed), head.copy()))
+        return head, False
+
+    monkeypatch.setattr(plugin, "_refitted", refitted)
+    monkeypatch.setattr(plugin, "evaluate", lambda effects, theta, base, scales, sens=None, fixed=None:
+                        Fitted(effects, 1.0, 1.0, np.ones(1), 1, 1, {}, ti.TwoInertiaState(theta, None, None, None,
+                                                                                         fixed=dict(fixed))))
+    monkeypatch.setattr(plugin, "magnitude", lambda m, name: ti.Magnitude(2.0, (1.0, 3.0), "1"))
+    layout = [SimpleNamespace(effect="stribeck", name=n) for n in ("ratio", "ln_stribeck_velocity")]
+    monkeypatch.setattr(ti, "_layout", lambda model: layout)
+    shape = ti.SHAPES["stribeck"]
+    theta = np.array([0.0, 0.0, 0.0, 0.0, 0.5, -9.0])
+    library = Fitted(("stribeck",), 1.0, 1.0, np.ones(1), 1, 1, {}, ti.TwoInertiaState(theta, None, None, None))
+    assert plugin.shape_of(library, "stribeck") == ""
+    there = plugin.shape_rival(library, "stribeck", 5.0)
+    assert seen[-1][0] == {shape.param: shape.value} and there.shape == shape.rival
+    assert seen[-1][1][5] == pytest.approx(-9.0 + shape.shifts["ln_stribeck_velocity"]) and seen[-1][1][4] == 0.5
+    assert plugin.shape_of(there.model, "stribeck") == shape.words
+    back = plugin.shape_rival(there.model, "stribeck", 5.0)
+    assert seen[-1][0] == {} and back.shape == shape.library and seen[-1][1][5] == pytest.approx(-9.0)
+    assert plugin.shape_of(back.model, "stribeck") == ""
 
 
 def test_the_size_search_follows_the_profile_and_checks_where_it_ends() -> None:

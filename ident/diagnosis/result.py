@@ -67,6 +67,9 @@ class NamedEffect:
     #: size there and 95 % interval, the training cost's change in noise variances, whether its refit was
     #: unfinished, and the residual it leaves over the noise (training, held back); {} when none
     shape_check: dict[str, Any] = field(default_factory=dict)
+    #: the shape the size is measured in where it is not the library's ('' where it is): the log preferred it
+    #: where the effect was named (the engine's ``_adopt_shape``), and the exported FMU has it too
+    shape: str = ""
 
     def size_note(self) -> str:
         """What the size probes showed, in words ('' when there were none)."""
@@ -91,7 +94,7 @@ class NamedEffect:
         return {"name": self.name, "magnitude": self.magnitude, "ci95": list(self.ci95), "unit": self.unit,
                 "evidence": self.evidence, "runner_up": self.runner_up, "margin": self.margin, "params": self.params,
                 "tentative": self.tentative, "why_tentative": self.why_tentative, "size_check": self.size_check,
-                "shape_check": self.shape_check}
+                "shape_check": self.shape_check, "shape": self.shape}
 
 
 @dataclass

@@ -58,6 +58,11 @@ def shape_task(args: tuple) -> ShapeFit | str | None:
     return out
 
 
+def cost_change(model: Fitted, rival: ShapeFit) -> float:
+    """The training cost's change from ``model`` to its shape rival, in ``model``'s noise variances."""
+    return (rival.model.train_cost - model.train_cost) / residual_variance(model)
+
+
 def judge(e: NamedEffect, final: Fitted, rival: ShapeFit, separable: float, doubts: list[str],
           over: tuple[float, float] | None = None, reproduces: bool = True) -> str:
     """Judge named effect ``e`` of ``final`` against its refit in the other shape (module docstring): record it in
@@ -65,7 +70,7 @@ def judge(e: NamedEffect, final: Fitted, rival: ShapeFit, separable: float, doub
     shape's interval then, and return the note for the report. ``over``: the rival's residual over the sensor noise
     (training, held back; None where unknown); ``reproduces``: whether the final model reproduces the training data
     (within its level of the noise)."""
-    d = (rival.model.train_cost - final.train_cost) / residual_variance(final)
+    d = cost_change(final, rival)
     e.shape_check = {"shape": rival.shape, "magnitude": rival.size, "ci95": list(rival.ci95), "delta_cost": d,
                      "unfinished": rival.unfinished, "over_noise": None if over is None else list(over)}
     unit = after_number(e.unit)

@@ -198,13 +198,20 @@ class ModelPlugin(ABC):
         return None
 
     def shape_rival_of(self, name: str) -> str:
-        """The other shape effect ``name``'s size is checked against, in words ('' when it has none): real effects
-        never have the library's exact shape, and where two shapes fit a log alike their sizes may differ."""
+        """The other shape of effect ``name``, in place of the library's, in words ('' when it has none): real
+        effects never have the library's exact shape, and where two shapes fit a log alike their sizes may differ.
+        The engine tries it where the effect is named (``_adopt_shape``) and checks the final size against it."""
+        return ""
+
+    def shape_of(self, model: Fitted, name: str) -> str:
+        """The shape effect ``name`` has in ``model``, in words, where it is not the library's ('' where it is):
+        a model that adopted its other shape (the engine's ``_adopt_shape``)."""
         return ""
 
     def shape_rival(self, model: Fitted, name: str, budget: float | None) -> ShapeFit | None:
-        """``model`` with effect ``name`` in ``shape_rival_of``'s shape, every unknown refitted from ``model``'s
-        optimum within ``budget`` (as ``refit``). None: no such shape."""
+        """``model`` with effect ``name`` in its other shape (``shape_rival_of``'s; the library's where ``model`` has
+        that one, ``shape_of``), every unknown refitted from ``model``'s optimum within ``budget`` (as ``refit``).
+        None: no such shape."""
         return None
 
     def outside_rival(self, model: Fitted, names: list[str]) -> tuple[dict[str, float], str, str]:

@@ -107,9 +107,10 @@ class ModelProblem(OutputError):
 
     @classmethod
     def maker(cls, effects: tuple[str, ...], scales: LogScales, budget: EvaluationBudget | None = None,
-              sens: Sensitivity | None = None) -> Any:
-        """A factory ``make(log, base, stop, sigma_l)`` for ``identify.fit_pipeline``."""
-        return partial(_make, effects, scales, budget, sens)
+              sens: Sensitivity | None = None, fixed: dict[str, float] | None = None) -> Any:
+        """A factory ``make(log, base, stop, sigma_l)`` for ``identify.fit_pipeline``; ``fixed``: FMU parameters
+        held."""
+        return partial(_make, effects, scales, budget, sens, dict(fixed or {}))
 
     def values(self, theta: np.ndarray) -> dict[str, float]:
         """FMU effect parameters at ``theta``."""
@@ -187,8 +188,9 @@ def _product(axes: list[tuple[float, ...]]) -> list[tuple[float, ...]]:
 
 
 def _make(effects: tuple[str, ...], scales: LogScales, budget: EvaluationBudget | None, sens: Sensitivity | None,
-          log: DriveLog, base: DriveParams, stop: int, sigma_load: float) -> ModelProblem:
-    return ModelProblem(log, base, effects, scales, stop, sigma_load, budget=budget, sens=sens, central=False)
+          fixed: dict[str, float], log: DriveLog, base: DriveParams, stop: int, sigma_load: float) -> ModelProblem:
+    return ModelProblem(log, base, effects, scales, stop, sigma_load, budget=budget, sens=sens, central=False,
+                        fixed=fixed)
 
 
 def simulate_full(log: DriveLog, problem: ModelProblem, theta: np.ndarray) -> tuple[dict[str, np.ndarray], float]:

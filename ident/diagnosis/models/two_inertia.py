@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -94,12 +94,30 @@ TWINS = {"viscous_motor": ("viscous_load", "b_m", "b_l", -2), "viscous_load": ("
 #: saturation torque and initial stiffness. Measured on the independent generator's logs of drive 5103, whose Dahl
 #: exponent is 2: the library's sizes were 15-22 % low on five of the six (66 % on the sixth, above the noise), two
 #: of them confident with intervals that missed.
+class Shape(NamedTuple):
+    """An effect's other shape (``SHAPES``): the FMU parameter that selects it and its value there, the shape in
+    short words, the rival in place of the library's and the library's back in place of it, in words, and shifts of
+    the effect's coordinates from the library's shape to the rival's start (taken back the other way)."""
+
+    param: str
+    value: float
+    words: str
+    rival: str
+    library: str
+    shifts: dict[str, float]
+
+
 SHAPES = {
-    "stribeck": ("stribeck_shape", 1.0, "an exponential Stribeck decay exp(-|v/v_s|) (stribeck_shape = 1) in place "
-                 "of the library's Gaussian exp(-(v/v_s)^2)",
-                 {"ln_stribeck_velocity": math.log(math.sqrt(math.pi) / 2)}),
-    "hysteresis": ("hysteresis_exponent", 2.0, "a Dahl element of exponent 2 (hysteresis_exponent = 2: an algebraic "
-                   "approach to its saturation torque) in place of the library's exponential one", {}),
+    "stribeck": Shape("stribeck_shape", 1.0, "an exponential Stribeck decay exp(-|v/v_s|) (stribeck_shape = 1)",
+                      "an exponential Stribeck decay exp(-|v/v_s|) (stribeck_shape = 1) in place of the library's "
+                      "Gaussian exp(-(v/v_s)^2)",
+                      "the library's Gaussian Stribeck decay exp(-(v/v_s)^2) (stribeck_shape = 2) in place of the "
+                      "exponential one", {"ln_stribeck_velocity": math.log(math.sqrt(math.pi) / 2)}),
+    "hysteresis": Shape("hysteresis_exponent", 2.0, "a Dahl element of exponent 2 (hysteresis_exponent = 2)",
+                        "a Dahl element of exponent 2 (hysteresis_exponent = 2: an algebraic approach to its "
+                        "saturation torque) in place of the library's exponential one",
+                        "the library's Dahl element of exponent 1 (an exponential approach to its saturation "
+                        "torque) in place of exponent 2", {}),
 }
 #: seconds per FMU simulation of 10 s at 5 kHz with each effect on (bench/README, "FMU with effects on": the nominal
 #: drive, 2026-11-25): a candidate's refit costs about its effect's simulations, so the workers start the costliest
@@ -335,7 +353,7 @@ class TwoInertiaPlugin(ModelPlugin):
         except BudgetExceeded as exc:
             return CandidateFit(test.candidate, error=str(exc), exhausted=True, evaluations=meter.used / self.stop,
                                 start=start)
-        fitted = self.evaluate(effects, theta, st.base, st.scales, sens=sens)
+        fitted = self.evaluate(effects, theta, st.base, st.scales, sens=sens, fixed=st.fixed)
         return CandidateFit(test.candidate, fitted, evaluations=meter.used / self.stop, start=start, exhausted=spent)
 
     @staticmethod
@@ -362,7 +380,7 @@ class TwoInertiaPlugin(ModelPlugin):
         unmoved, spent = math.inf, False
         for i, heads in enumerate(runs):
             problem = ModelProblem(self.full, st.base, _fmu_effects(effects), st.scales, self.stop, self.sigma,
-                                   budget=meter, sens=sens, central=False)
+                                   budget=meter, sens=sens, central=False, fixed=st.fixed)
             try:
                 lo, hi = problem.bounds()
                 costs = [problem.cost(np.clip(h, lo, hi)) for h in heads]
@@ -392,7 +410,8 @@ class TwoInertiaPlugin(ModelPlugin):
             alt = np.array([point.get(c.name, xi) for c, xi in zip(coords, x)])
             rows.append(np.concatenate([st.theta[4:], alt]))
         problem, theta, _, _, _ = fit_pipeline(truncate_log(self.full, self.stop), st.base,
-                                               ModelProblem.maker(_fmu_effects(effects), st.scales, meter, sens),
+                                               ModelProblem.maker(_fmu_effects(effects), st.scales, meter, sens,
+                                                                  st.fixed),
                                                np.unique(np.array(rows), axis=0))
         problem.close()
         return theta, False
@@ -462,13 +481,14 @@ class TwoInertiaPlugin(ModelPlugin):
         try:
             problem, theta, _, _, _ = fit_pipeline(truncate_log(self.full, self.stop), st.base,
                                                    ModelProblem.maker(_fmu_effects(model.effects), st.scales,
-                                                                      meter, st.sens), st.theta[4:][None, :])
+                                                                      meter, st.sens, st.fixed),
+                                                   st.theta[4:][None, :])
             problem.close()
         except BudgetExceeded:
             return self.resimulated(model), (f"identifying {' + '.join(model.effects)} from scratch used up its "
                                               f"budget ({meter.used / self.stop:.0f} training logs simulated): the "
                                               "refitted model is kept")
-        fresh = self.evaluate(model.effects, theta, st.base, st.scales, keep=True, sens=st.sens)
+        fresh = self.evaluate(model.effects, theta, st.base, st.scales, keep=True, sens=st.sens, fixed=st.fixed)
         if fresh.train_cost < model.train_cost:
             return fresh, (f"identified from scratch with {' + '.join(model.effects)}: training cost "
                            f"{model.train_cost:.6g} -> {fresh.train_cost:.6g}")
@@ -595,22 +615,29 @@ class TwoInertiaPlugin(ModelPlugin):
         return self._fit_from(model, tuple(rival if e == name else e for e in model.effects), head, budget)
 
     def shape_rival_of(self, name: str) -> str:
-        return SHAPES[name][2] if name in SHAPES else ""
+        return SHAPES[name].rival if name in SHAPES else ""
+
+    def shape_of(self, model: Fitted, name: str) -> str:
+        shape = SHAPES.get(name)
+        return shape.words if shape and model.state.fixed.get(shape.param) == shape.value else ""
 
     def shape_rival(self, model: Fitted, name: str, budget: float | None) -> ShapeFit | None:
-        """The effect in its other shape (``SHAPES``): the FMU parameter held at the rival's value, every unknown
-        refitted from ``model``'s optimum, the effect's coordinates shifted as ``SHAPES`` says."""
+        """The effect in its other shape (``SHAPES``; the library's again where ``model`` has the rival's): the FMU
+        parameter held at that shape's value, every unknown refitted from ``model``'s optimum, the effect's
+        coordinates shifted as ``SHAPES`` says."""
         if name not in SHAPES or model.state.rigid or name not in model.effects:
             return None
-        param, value, what, shifts = SHAPES[name]
-        st = model.state
-        rival = replace(model, state=replace(st, fixed={**st.fixed, param: value}, sim=None, cov=None, covs=None))
+        shape, st = SHAPES[name], model.state
+        fixed, what, sign = {**st.fixed, shape.param: shape.value}, shape.rival, 1.0
+        if self.shape_of(model, name):   # back to the library's shape: the FMU's default
+            fixed, what, sign = {k: v for k, v in st.fixed.items() if k != shape.param}, shape.library, -1.0
+        rival = replace(model, state=replace(st, fixed=fixed, sim=None, cov=None, covs=None))
         head = st.theta.copy()
         for i, c in enumerate(_layout(model)):
             if c.effect == name:
-                head[4 + i] += shifts.get(c.name, 0.0)
+                head[4 + i] += sign * shape.shifts.get(c.name, 0.0)
         theta, unfinished = self._refitted(rival, model.effects, head, budget)
-        out = self.evaluate(model.effects, theta, st.base, st.scales, sens=st.sens, fixed=rival.state.fixed)
+        out = self.evaluate(model.effects, theta, st.base, st.scales, sens=st.sens, fixed=fixed)
         size = self.magnitude(out, name)
         return ShapeFit(out, size.value, size.ci95, what, unfinished)
 
