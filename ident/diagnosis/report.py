@@ -100,8 +100,8 @@ def _effects(diag: Diagnosis) -> list[str]:
     out = []
     for e in diag.effects:
         sure = f"**tentative**: {e.why_tentative}" if e.tentative else "confident"
-        out.append(f"- **{e.name}**: {e.magnitude:.5g}{after_number(e.unit)} (95 % interval {e.ci95[0]:.5g} .. "
-                   f"{e.ci95[1]:.5g}); "
+        out.append(f"- **{e.name}**{' (' + e.shape + ', the shape the log preferred)' if e.shape else ''}: "
+                   f"{e.magnitude:.5g}{after_number(e.unit)} (95 % interval {e.ci95[0]:.5g} .. {e.ci95[1]:.5g}); "
                    f"{sure}. Evidence: {e.evidence}." + (f" Size: {e.size_note()}." if e.size_check else "")
                    + (f" Shape: {e.shape_note()}." if e.shape_check else ""))
     return out

@@ -1,5 +1,7 @@
 """Does a named size depend on the effect's shape? The check of each named effect against its other shape, after the
-size search.
+size search. (Where the effect was named, the loop already refitted it in its other shape and went on in it when the
+log preferred it: the engine's ``_adopt_shape``, by the same threshold. The check here is then of the library's shape
+against the adopted one, at the final model.)
 
 Why: real effects never have the library's exact shape, and where a log cannot tell two shapes apart, their sizes
 may still differ. Measured on an independent torque-step log whose Stribeck decay was exponential: the library's
