@@ -506,13 +506,13 @@ def test_the_shape_check_refits_each_named_effect_that_has_another_shape() -> No
 def test_an_effect_is_adopted_in_the_shape_the_log_prefers_where_it_is_named() -> None:
     """Where a step accepts an effect that has another shape (``_Search._adopt_shape``), it is refitted in it at
     once, and the loop goes on from that refit (converged, as an accepted model is) where it fits the training data
-    better by at least the loop's threshold; a refit within the threshold, a worse one, or one that failed leaves the
-    library's shape, and the notes say which. An effect without another shape is not refitted."""
+    better by more than the step resolves: the larger of the loop's threshold and the 1 % of the training cost
+    (``MIN_GAIN``) the candidate's size search leaves unresolved (on a long log the latter, on a short one the
+    former). A refit within that, a worse one, or one that failed leaves the library's shape, and the notes say
+    which. An effect without another shape is not refitted."""
+    from ident.diagnosis import MIN_GAIN
     from ident.diagnosis.engine import SEPARABLE, _Say, _Search
     from ident.diagnosis.models import ShapeFit
-
-    model = Fitted(("stribeck",), 7000.0, 3000.0, np.ones(3000), 7000, 6, {})
-    s2 = model.train_cost / (model.n_train - model.k)
 
     class Plugin:
         converged: list = []
@@ -525,19 +525,25 @@ def test_an_effect_is_adopted_in_the_shape_the_log_prefers_where_it_is_named() -
             self.converged.append((m, unfinished))
             return m, "refitted on" if unfinished else ""
 
-    for d, unfinished, adopted in ((-SEPARABLE - 1.0, False, True), (-SEPARABLE - 1.0, True, True),
-                                   (-SEPARABLE + 1.0, False, False), (SEPARABLE + 1.0, False, False)):
-        rival = Fitted(model.effects, model.train_cost + d * s2, 2900.0, np.ones(3000), 7000, 6, {})
-        plugin = Plugin()
-        plugin.converged = []
-        pool = _Pool([ShapeFit(rival, 1.4, (1.3, 1.5), "an exponential decay", unfinished)])
-        search = _Search(plugin, pool, 5.0, 3, _Say(False))
-        out = search._adopt_shape(model, "stribeck", 0)
-        assert (out is rival) == adopted and (out is model) == (not adopted), d
-        assert [t[2] for t in pool.tasks] == ["stribeck"]
-        assert plugin.converged == ([(rival, unfinished)] if adopted else [])
-        assert any(("adopted, the loop goes on from it" if adopted else "the library's shape is kept") in n
-                   and f"training cost {d:+.4g} noise variances" in n for n in search.notes), search.notes
+    for n in (7000, 1000):   # samples: the bar is 1 % of the cost (69.9 noise variances), then SEPARABLE
+        model = Fitted(("stribeck",), float(n), 3000.0, np.ones(3000), n, 6, {})
+        s2 = model.train_cost / (model.n_train - model.k)
+        bar = max(SEPARABLE, (MIN_GAIN - 1.0) * (n - 6))
+        assert (bar > SEPARABLE) == (n == 7000)
+        for d, unfinished, adopted in ((-bar - 1.0, False, True), (-bar - 1.0, True, True), (-bar + 1.0, False, False),
+                                       (SEPARABLE + 1.0, False, False)):
+            rival = Fitted(model.effects, model.train_cost + d * s2, 2900.0, np.ones(3000), n, 6, {})
+            plugin = Plugin()
+            plugin.converged = []
+            pool = _Pool([ShapeFit(rival, 1.4, (1.3, 1.5), "an exponential decay", unfinished)])
+            search = _Search(plugin, pool, 5.0, 3, _Say(False))
+            out = search._adopt_shape(model, "stribeck", 0)
+            assert (out is rival) == adopted and (out is model) == (not adopted), (n, d)
+            assert [t[2] for t in pool.tasks] == ["stribeck"]
+            assert plugin.converged == ([(rival, unfinished)] if adopted else [])
+            assert any(("adopted, the loop goes on from it" if adopted else "the library's shape is kept") in x
+                       and f"training cost {d:+.4g} noise variances" in x and f"only beyond {bar:.4g}" in x
+                       for x in search.notes), search.notes
     search = _Search(Plugin(), _Pool(["RuntimeError: no"]), 5.0, 3, _Say(False))
     assert search._adopt_shape(model, "stribeck", 0) is model
     assert search.notes == ["step 1: stribeck could not be refitted in its other shape (RuntimeError: no)"]
