@@ -552,6 +552,52 @@ def test_an_effect_is_adopted_in_the_shape_the_log_prefers_where_it_is_named() -
     assert search._adopt_shape(model, "hysteresis", 0) is model and pool.tasks == [] and search.notes == []
 
 
+def test_the_final_model_is_refitted_in_the_shape_the_final_check_prefers() -> None:
+    """Where the final check (after the size search) finds a named effect's other shape better by the loop's
+    threshold or more (``_Search._preferred``), that refit, converged, becomes the final model, the one whose sizes
+    are searched and checked again; the doubts and notes of the first search are taken back (they were of the model
+    given up), and the final step says why. Where several are preferred, the one preferred most; where none is, the
+    final model stands and nothing is taken back."""
+    from ident.diagnosis.engine import SEPARABLE, _Say, _Search
+    from ident.diagnosis.models import Magnitude, ShapeFit
+
+    class Plugin(_Recorded):
+        @staticmethod
+        def magnitude(m: Fitted, name: str) -> Magnitude:
+            return Magnitude(0.8, (0.7, 0.9), "1")
+
+        @staticmethod
+        def converge(m: Fitted, budget: float | None, unfinished: bool = False) -> tuple[Fitted, str]:
+            return m, ""
+
+    final = Fitted(("stribeck", "hysteresis"), 7000.0, 3000.0, np.ones(3000), 7000, 8, {})
+    s2 = final.train_cost / (final.n_train - final.k)
+
+    def rival(d: float, size: float) -> ShapeFit:
+        return ShapeFit(Fitted(final.effects, final.train_cost + d * s2, 2900.0, np.ones(3000), 7000, 8, {}), size,
+                        (0.95 * size, 1.05 * size), "another shape")
+
+    for ds, chosen in (((-SEPARABLE - 5.0, -SEPARABLE - 1.0), "stribeck"), ((-SEPARABLE + 1.0, 3.0), None)):
+        search = _Search(Plugin(), _Pool(), 5.0, 3, _Say(False))
+        search._record(final, "hysteresis", 2.0, {})
+        search.doubts = {"stribeck": ["from its step"]}
+        mark = ({k: list(v) for k, v in search.doubts.items()}, len(search.notes))
+        search.doubts["stribeck"].append("from the size search")
+        search.notes.append("size search: stribeck moved")
+        search.constancy = {"checked": False, "why": "x"}
+        search.shapes = {"stribeck": rival(ds[0], 1.0), "hysteresis": rival(ds[1], 2.0)}
+        out = search._preferred(final, mark)
+        if chosen is None:
+            assert out is final and search.notes == ["size search: stribeck moved"] and len(search.shapes) == 2
+            continue
+        assert out is search.models[-1]
+        assert out.train_cost == pytest.approx(final.train_cost + ds[0] * s2)
+        assert search.doubts == {"stribeck": ["from its step"]} and search.shapes == {} and search.constancy == {}
+        assert len(search.notes) == 1 and "the final check refitted stribeck with another shape" in search.notes[0]
+        assert f"better by {-ds[0]:.4g} noise variances" in search.notes[0] and "size 1 against 0.8" in search.notes[0]
+        assert search.steps[-1].extra.get("refreshed") and search.steps[-1].added == "hysteresis"
+
+
 def test_a_shape_rival_goes_back_to_the_librarys_shape_from_an_adopted_one(monkeypatch) -> None:
     """``TwoInertiaPlugin.shape_rival`` from the library's shape holds the FMU's shape parameter at the rival's
     value and shifts the Stribeck velocity's coordinate to the rival's start; from a model that adopted the rival

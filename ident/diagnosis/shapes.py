@@ -1,7 +1,7 @@
 """Does a named size depend on the effect's shape? The check of each named effect against its other shape, after the
 size search. (Where the effect was named, the loop already refitted it in its other shape and went on in it when the
-log preferred it: the engine's ``_adopt_shape``, by the same threshold. The check here is then of the library's shape
-against the adopted one, at the final model.)
+log preferred it by more than a step resolves: the engine's ``_adopt_shape``. The check here is then of the library's
+shape against the adopted one.)
 
 Why: real effects never have the library's exact shape, and where a log cannot tell two shapes apart, their sizes
 may still differ. Measured on an independent torque-step log whose Stribeck decay was exponential: the library's
@@ -18,8 +18,10 @@ rule's level detects with 95 % power):
 
 - **the log rejects the other shape** (it fits worse by at least that, its refit converged, and the final model
   reproduces the training data, within its level of the noise): the size stands;
-- **the log prefers it** (better by at least that): a shape mismatch remains; the name is tentative, and the
-  interval is widened to hold the other shape's interval too;
+- **the log prefers it** (better by at least that): the engine makes that refit the final model and searches and
+  checks its sizes again from there (``_preferred``), once; where the check of that model prefers the shape given
+  up in turn, a shape mismatch remains: the name is tentative, and the interval is widened to hold the other shape's
+  interval too;
 - **the log cannot tell the two** (in between, a refit that used up its budget first, or a worse fit from a final
   model that does not reproduce the training data: a refit from a model in another basin need not find the other
   shape's best; measured on drive 5103's torque-step logs, whose Dahl exponent is 2: from the library's fits at
