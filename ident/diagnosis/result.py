@@ -68,7 +68,8 @@ class NamedEffect:
     #: unfinished, and the residual it leaves over the noise (training, held back); {} when none
     shape_check: dict[str, Any] = field(default_factory=dict)
     #: the shape the size is measured in where it is not the library's ('' where it is): the log preferred it
-    #: where the effect was named (the engine's ``_adopt_shape``), and the exported FMU has it too
+    #: where the effect was named or at the final check (the engine's ``_adopt_shape``, ``_preferred``), and the
+    #: exported FMU has it too
     shape: str = ""
 
     def size_note(self) -> str:

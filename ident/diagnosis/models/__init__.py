@@ -205,7 +205,7 @@ class ModelPlugin(ABC):
 
     def shape_of(self, model: Fitted, name: str) -> str:
         """The shape effect ``name`` has in ``model``, in words, where it is not the library's ('' where it is):
-        a model that adopted its other shape (the engine's ``_adopt_shape``)."""
+        a model that adopted its other shape (the engine's ``_adopt_shape``, ``_preferred``)."""
         return ""
 
     def shape_rival(self, model: Fitted, name: str, budget: float | None) -> ShapeFit | None:

@@ -82,18 +82,8 @@ FLEXIBILITY = "flexibility"
 #: effects the gear makes near twins (``TwoInertiaPlugin.twin``): effect -> (its twin, its parameter, the twin's, the
 #: power of the ratio r = q_l / q_m that carries the size over: b_m = r^2 b_l)
 TWINS = {"viscous_motor": ("viscous_load", "b_m", "b_l", -2), "viscous_load": ("viscous_motor", "b_l", "b_m", 2)}
-#: the other shape each effect's named size is checked against (``shape_rival``): effect -> (the FMU parameter that
-#: selects it, its value there, the shape in words, shifts of the effect's coordinates for the rival's start).
-#: Stribeck: the decay exp(-|v/v_s|^delta) of the generalised Stribeck law (Armstrong-Helouvry's exponent) at
-#: delta = 1, the exponential (Tustin's) decay, beside the library's Gaussian delta = 2; it starts where its excess
-#: has the same integral over speed as the Gaussian's (v_s sqrt(pi) / 2), so that both start with the same
-#: breakaway excess and the same friction impulse over a slide through the decay. Measured on an independent
-#: torque-step log with an exponential decay: the Gaussian fitted it to the noise (1.008x) with the ratio 37 % low
-#: and a confident interval that missed the truth. Hysteresis: Dahl's element of exponent n = 2 (an algebraic
-#: approach to its saturation torque) beside the library's n = 1 (an exponential one); it starts with the same
-#: saturation torque and initial stiffness. Measured on the independent generator's logs of drive 5103, whose Dahl
-#: exponent is 2: the library's sizes were 15-22 % low on five of the six (66 % on the sixth, above the noise), two
-#: of them confident with intervals that missed.
+
+
 class Shape(NamedTuple):
     """An effect's other shape (``SHAPES``): the FMU parameter that selects it and its value there, the shape in
     short words, the rival in place of the library's and the library's back in place of it, in words, and shifts of
@@ -107,6 +97,18 @@ class Shape(NamedTuple):
     shifts: dict[str, float]
 
 
+#: the other shape of each effect (``shape_rival``; the engine adopts it where the log prefers it, and checks the
+#: named size against it): effect -> its ``Shape``.
+#: Stribeck: the decay exp(-|v/v_s|^delta) of the generalised Stribeck law (Armstrong-Helouvry's exponent) at
+#: delta = 1, the exponential (Tustin's) decay, beside the library's Gaussian delta = 2; it starts where its excess
+#: has the same integral over speed as the Gaussian's (v_s sqrt(pi) / 2), so that both start with the same
+#: breakaway excess and the same friction impulse over a slide through the decay. Measured on an independent
+#: torque-step log with an exponential decay: the Gaussian fitted it to the noise (1.008x) with the ratio 37 % low
+#: and a confident interval that missed the truth. Hysteresis: Dahl's element of exponent n = 2 (an algebraic
+#: approach to its saturation torque) beside the library's n = 1 (an exponential one); it starts with the same
+#: saturation torque and initial stiffness. Measured on the independent generator's logs of drive 5103, whose Dahl
+#: exponent is 2: the library's sizes were 15-22 % low on five of the six (66 % on the sixth, above the noise), two
+#: of them confident with intervals that missed.
 SHAPES = {
     "stribeck": Shape("stribeck_shape", 1.0, "an exponential Stribeck decay exp(-|v/v_s|) (stribeck_shape = 1)",
                       "an exponential Stribeck decay exp(-|v/v_s|) (stribeck_shape = 1) in place of the library's "
