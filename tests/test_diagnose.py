@@ -555,8 +555,8 @@ def test_an_effect_is_adopted_in_the_shape_the_log_prefers_where_it_is_named() -
 def test_the_final_model_is_refitted_in_the_shape_the_final_check_prefers() -> None:
     """Where the final check (after the size search) finds a named effect's other shape better by the loop's
     threshold or more (``_Search._preferred``), that refit, converged, becomes the final model, the one whose sizes
-    are searched and checked again; the doubts and notes of the first search are taken back (they were of the model
-    given up), and the final step says why. Where several are preferred, the one preferred most; where none is, the
+    are searched and checked again; the doubts, notes and size checks of the first search are taken back (they were
+    of the model given up), and the final step says why. Where several are preferred, the one preferred most; where none is, the
     final model stands and nothing is taken back."""
     from ident.diagnosis.engine import SEPARABLE, _Say, _Search
     from ident.diagnosis.models import Magnitude, ShapeFit
@@ -584,7 +584,7 @@ def test_the_final_model_is_refitted_in_the_shape_the_final_check_prefers() -> N
         mark = ({k: list(v) for k, v in search.doubts.items()}, len(search.notes))
         search.doubts["stribeck"].append("from the size search")
         search.notes.append("size search: stribeck moved")
-        search.constancy = {"checked": False, "why": "x"}
+        search.constancy, search.size_checks = {"checked": False, "why": "x"}, {"stribeck": []}
         search.shapes = {"stribeck": rival(ds[0], 1.0), "hysteresis": rival(ds[1], 2.0)}
         out = search._preferred(final, mark)
         if chosen is None:
@@ -593,6 +593,7 @@ def test_the_final_model_is_refitted_in_the_shape_the_final_check_prefers() -> N
         assert out is search.models[-1]
         assert out.train_cost == pytest.approx(final.train_cost + ds[0] * s2)
         assert search.doubts == {"stribeck": ["from its step"]} and search.shapes == {} and search.constancy == {}
+        assert search.size_checks == {}
         assert len(search.notes) == 1 and "the final check refitted stribeck with another shape" in search.notes[0]
         assert f"better by {-ds[0]:.4g} noise variances" in search.notes[0] and "size 1 against 0.8" in search.notes[0]
         assert search.steps[-1].extra.get("refreshed") and search.steps[-1].added == "hysteresis"

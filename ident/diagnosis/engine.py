@@ -289,8 +289,8 @@ class _Search:
     def _preferred(self, final: Fitted, mark: tuple[dict[str, list[str]], int]) -> Fitted:
         """``final``, or, where the final check found the log preferring a named effect's other shape by
         ``SEPARABLE`` noise variances or more (the most where several), that refit converged: the final model the
-        sizes are then searched and checked again from (``run``), with the doubts and notes of the first search
-        (``mark``: as they were before it) taken back, since they were of a model given up.
+        sizes are then searched and checked again from (``run``), with the doubts, notes and size checks of the first
+        search (``mark``: as they were before it) taken back, since they were of a model given up.
 
         Why: a preference below what a step resolves (``_adopt_shape``) is only seen after the size search; the
         check alone made the name tentative and widened its interval to the other shape's. Measured on an
@@ -304,7 +304,7 @@ class _Search:
         rival, library = self.shapes[name], self.plugin.magnitude(final, name).value
         doubts, n = mark
         self.doubts, self.notes = {k: list(v) for k, v in doubts.items()}, self.notes[:n]
-        self.shapes, self.constancy = {}, {}
+        self.shapes, self.constancy, self.size_checks = {}, {}, {}
         model, how = self.plugin.converge(rival.model, None if self.budget is None
                                           else CONVERGE_BUDGETS * self.budget, unfinished=rival.unfinished)
         self.steps[-1] = self._refreshed(model, self.steps[-1], (
