@@ -1137,7 +1137,7 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
             return CandidateFit(test.candidate, model(m.effects + (test.candidate,), 1.0 / self.gain))
 
         @staticmethod
-        def converge(m: Fitted, budget: float | None) -> tuple[Fitted, str]:
+        def converge(m: Fitted, budget: float | None, unfinished: bool = False) -> tuple[Fitted, str]:
             return m, ""
 
         def over_noise(self, m: Fitted) -> tuple[float, float] | None:

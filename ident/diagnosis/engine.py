@@ -305,8 +305,7 @@ class _Search:
         doubts, n = mark
         self.doubts, self.notes = {k: list(v) for k, v in doubts.items()}, self.notes[:n]
         self.shapes, self.constancy, self.size_checks = {}, {}, {}
-        model, how = self.plugin.converge(rival.model, None if self.budget is None
-                                          else CONVERGE_BUDGETS * self.budget, unfinished=rival.unfinished)
+        model, how = self._converged(rival.model, rival.unfinished)
         self.steps[-1] = self._refreshed(model, self.steps[-1], (
             f"the final check refitted {name} with {rival.shape}: it fits the training data better by {-d:.4g} noise "
             f"variances (the loop tells {SEPARABLE:.3g} apart), its size {rival.size:.4g} against "
@@ -572,8 +571,7 @@ class _Search:
     def _accept(self, current: Fitted, winner: CandidateFit, fits: list[CandidateFit], k: int) -> Fitted:
         name = winner.name
         self.say(f"step {k}: {name} accepted; converging the model with it ...")
-        model, how = self.plugin.converge(winner.model, None if self.budget is None
-                                          else CONVERGE_BUDGETS * self.budget, unfinished=winner.exhausted)
+        model, how = self._converged(winner.model, winner.exhausted)
         if how:
             self.notes.append(f"step {k + 1}: {how}")
         model = self._adopt_shape(model, name, k)
@@ -593,6 +591,12 @@ class _Search:
                                            "margin": margin})
         self.say(f"step {k + 1}: {self._gap(model)}")
         return model
+
+    def _converged(self, model: Fitted, unfinished: bool = False) -> tuple[Fitted, str]:
+        """``plugin.converge`` of a model the loop takes on (accepted, adopted in another shape, exchanged in),
+        within ``CONVERGE_BUDGETS`` candidate budgets."""
+        return self.plugin.converge(model, None if self.budget is None else CONVERGE_BUDGETS * self.budget,
+                                    unfinished=unfinished)
 
     def _adopt_shape(self, model: Fitted, name: str, k: int) -> Fitted:
         """``model``, or ``model`` with the effect ``name`` just accepted in its other shape (``shapes``'s rival,
@@ -629,8 +633,7 @@ class _Search:
             self.notes.append(f"step {k + 1}: {words}: the library's shape is kept")
             return model
         self.notes.append(f"step {k + 1}: {words}: adopted, the loop goes on from it")
-        adopted, how = self.plugin.converge(fit.model, None if self.budget is None else CONVERGE_BUDGETS * self.budget,
-                                            unfinished=fit.unfinished)
+        adopted, how = self._converged(fit.model, fit.unfinished)
         if how:
             self.notes.append(f"step {k + 1}: {how}")
         return adopted
@@ -741,7 +744,7 @@ class _Search:
             return None
         best = ok[0]
         v = verdict(current, best.model)
-        model, _ = self.plugin.converge(best.model, None if self.budget is None else CONVERGE_BUDGETS * self.budget)
+        model, _ = self._converged(best.model)
         runner, margin, why = _runner_up(best, fits, screen_table(tests))
         i = next(i for i, e in enumerate(self.named) if e.name == name)
         self.named[i] = NamedEffect(best.name, math.nan, (math.nan, math.nan), "",
