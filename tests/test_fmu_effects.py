@@ -510,6 +510,26 @@ def test_stribeck_slide_against_scipy(fmi: int, shape: float) -> None:
     assert np.any(np.abs(v) < 2 * vs), "the slide never reached the Stribeck range"
 
 
+@pytest.mark.parametrize("vs", [2e-4, 2e-5])
+def test_exponential_decay_slide_through_its_range(vs: float) -> None:
+    """The exponential decay's substeps lengthen with its size (exp(x/7) at x = |v|/vs): a motor that breaks away at
+    three times its level, load held, slides from rest through the decay's whole range (to 440 and 4400 vs) and back
+    to rest, and the trajectory still matches the independent DOP853 reference within the slide test's bound
+    (measured: 7.9e-13 and 5.1e-13 rad, as with the range's substeps fixed at the breakaway's before)."""
+    p = NOMINAL.with_values(f_l=1e3, stribeck_ratio=0.8, stribeck_velocity=vs, friction_asymmetry=0.15, b_m=5e-5,
+                            stribeck_shape=1.0)
+    level = p.f_m * (1 + 0.15) * (1 + 0.8)
+    dt = 2e-4
+    torques = np.concatenate([np.full(20, 3 * level), np.zeros(200)])
+    with Plant(p) as plant:
+        out = traj(plant, torques, dt, ("q_m", "v_m"))
+    ref = Reference(p)
+    got = np.array([ref.y.copy()] + [ref.advance(T, dt) for T in torques])
+    assert np.max(np.abs(out[:, 1])) > 100 * vs / p.r  # through the whole range (36 vs) and beyond
+    assert out[-1, 1] == 0.0  # back at rest
+    np.testing.assert_allclose(out[:, 0], got[:, 0], rtol=0, atol=1e-10)
+
+
 # ---------------------------------------------------------------------------- 6. hysteresis ----------------------
 
 def test_hysteresis_dahl_branches(fmi: int) -> None:
@@ -562,11 +582,13 @@ def test_energy_balance_with_effects(fmi: int) -> None:
 
 # ---------------------------------------------------------------------------- 8. cross-check with scipy ----------
 
-@pytest.mark.parametrize("exponent", [1.0, 2.0, 1.5], ids=["dahl", "dahl-2", "dahl-1.5"])
-def test_all_effects_against_scipy_reference(fmi: int, exponent: float) -> None:
-    """Every effect on (the Dahl element at the default exponent 1 and at others, ``hysteresis_exponent``): the
-    trajectory and the hysteresis state against the independent DOP853 reference."""
-    p = NOMINAL.with_values(**ALL_ON, hysteresis_exponent=exponent)
+@pytest.mark.parametrize("exponent, shape", [(1.0, 2.0), (2.0, 2.0), (1.5, 2.0), (2.0, 1.0)],
+                         ids=["dahl", "dahl-2", "dahl-1.5", "exponential-dahl-2"])
+def test_all_effects_against_scipy_reference(fmi: int, exponent: float, shape: float) -> None:
+    """Every effect on (the Dahl element at the default exponent 1 and at others, ``hysteresis_exponent``; the
+    Gaussian Stribeck decay, and the exponential with exponent 2, the shapes the diagnosis checks the library's
+    against): the trajectory and the hysteresis state against the independent DOP853 reference."""
+    p = NOMINAL.with_values(**ALL_ON, hysteresis_exponent=exponent, stribeck_shape=shape)
     dt = 2e-4
     u = pulse_train(p, dt, 0.16)
     with Plant(p, fmi_version=fmi, q_l_start=Q_L_EQ) as plant:
