@@ -397,7 +397,7 @@ static double hysteresis_z(const HDModel *m, double d) {
     double n1 = m->hysteresis_exponent - 1.0, u0 = 1.0 - dir * m->hyst_z0 / H;
     double a = fmax(-n1 * shape_pow(fmax(u0, 0.0), n1) * x, -1.0);
     if (n1 == 1.0) /* 1 + a >= exp(-50): the same bound on the growth against the branch as e's below */
-        return m->hyst_z0 + dir * H * u0 * a / fmax(1.0 + a, 1.9287498479639178e-22);
+        return m->hyst_z0 + dir * H * u0 * a / fmax(1.0 + a, exp(-50.0));
     /* e > 50 only transiently against the branch, before its event: no overflow */
     double e = fmin(-log1p(a) / n1, 50.0);
     return m->hyst_z0 - dir * H * u0 * expm1(e);
