@@ -556,8 +556,8 @@ def test_the_final_model_is_refitted_in_the_shape_the_final_check_prefers() -> N
     """Where the final check (after the size search) finds a named effect's other shape better by the loop's
     threshold or more (``_Search._preferred``), that refit, converged, becomes the final model, the one whose sizes
     are searched and checked again; the doubts, notes and size checks of the first search are taken back (they were
-    of the model given up), and the final step says why. Where several are preferred, the one preferred most; where none is, the
-    final model stands and nothing is taken back."""
+    of the model given up), and the final step says why. Where several are preferred, the one preferred most; where
+    none is, the final model stands and nothing is taken back."""
     from ident.diagnosis.engine import SEPARABLE, _Say, _Search
     from ident.diagnosis.models import Magnitude, ShapeFit
 

@@ -1159,9 +1159,10 @@ static HDStatus fx_substep(const HDModel *m, double h, double *h_sub, char *err,
  * instead of 136 with the breakaway's substeps over the whole range; every effect on, against an independent DOP853
  * integration, 4.9e-14 rad on q_m (3.7e-14 before; 3.0e-10, beyond the test's 1e-10, with no Stribeck limit past the
  * breakaway). */
-static double stribeck_cap(double cap, double v, double a, double vs, double h_sub, double rate_max, double delta) {
+static double stribeck_cap(double cap, double v, double a, double vs, double h_sub, double rate_max, double range,
+                           double delta) {
     double slowest = fabs(v) - fabs(a) * h_sub; /* the slowest speed this substep may reach */
-    if (slowest < stribeck_range(delta) * vs) {
+    if (slowest < range * vs) {
         double scale = vs;
         if (delta == 1.0 && slowest > 0.0) {
             scale = vs * exp(slowest / (7.0 * vs));
@@ -1186,11 +1187,11 @@ static double fx_local_substep(const HDModel *m, double h_sub, const FxForces *f
     if (m->stribeck_ratio > 0.0) {
         double k = (1.0 + fabs(m->friction_asymmetry)) * m->stribeck_ratio * stribeck_slope_max(m->stribeck_shape);
         double vs_m = m->stribeck_velocity / m->r, vs_l = m->stribeck_velocity;
-        double delta = m->stribeck_shape;
+        double delta = m->stribeck_shape, range = stribeck_range(delta); /* once for both bodies: a pow */
         if (!m->motor_stuck && m->f_m > 0.0)
-            cap = stribeck_cap(cap, m->v_m, f.a_m, vs_m, look, k * m->f_m / (m->J_m * vs_m), delta);
+            cap = stribeck_cap(cap, m->v_m, f.a_m, vs_m, look, k * m->f_m / (m->J_m * vs_m), range, delta);
         if (!m->load_stuck && m->f_l > 0.0)
-            cap = stribeck_cap(cap, m->v_l, f.a_l, vs_l, look, k * m->f_l / (m->J_l * vs_l), delta);
+            cap = stribeck_cap(cap, m->v_l, f.a_l, vs_l, look, k * m->f_l / (m->J_l * vs_l), range, delta);
     }
     double H = m->hysteresis_torque, left = fabs(m->hyst_dir * H - f.s.z); /* the transient's torque still to come */
     if (H > 0.0 && left > 1e-13 * H) {
