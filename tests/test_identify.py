@@ -264,25 +264,35 @@ def test_predict_text_prints_parameters_verdict_and_prediction(tmp_path: Path) -
     assert lines[-1].startswith("impulse resolution") and "linear" in lines[-1]
 
 
+@pytest.fixture(scope="module")
+def long_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 40 s reference log, made once for both signals (18 s to generate; ``--dist loadfile`` keeps a file's tests
+    on one worker)."""
+    from tests.reference.generator import identification_case
+
+    csv, _ = identification_case(4101, "default", duration_s=40.0).write(tmp_path_factory.mktemp("long"), "run")
+    return csv
+
+
 @pytest.mark.parametrize("signame, code, word", [("SIGINT", 130, "interrupted"), ("SIGTERM", 143, "terminated")])
-def test_ctrl_c_inside_a_fit_stops_it_at_once(tmp_path: Path, signame: str, code: int, word: str) -> None:
+def test_ctrl_c_inside_a_fit_stops_it_at_once(tmp_path: Path, long_log: Path, signame: str, code: int,
+                                              word: str) -> None:
     """Issue 17: a KeyboardInterrupt inside IPOPT's callbacks used to be swallowed (the fit carried on). SIGINT to
-    `hdrive identify` once the first window is fitted (the next IPOPT run is under way): exit 130, one line,
-    nothing left in TMPDIR; SIGTERM likewise (exit 143; it too was swallowed inside IPOPT, measured exit 0)."""
+    `hdrive identify` once the first two windows are fitted (the last, whole-log IPOPT run is under way): exit 130,
+    one line, nothing left in TMPDIR; SIGTERM likewise (exit 143; it too was swallowed inside IPOPT, measured exit 0).
+    The log is 40 s long so that the last fit takes seconds (7 s measured; everything after the first window of a
+    4 s log took 1.4 s, and CI once sent the signal after the process had finished, exit 0)."""
     import signal
     import time
 
-    from tests.reference.generator import identification_case
-
     tmp = tmp_path / "tmp"
     tmp.mkdir()
-    g = identification_case(4101, "default")
-    csv, _ = g.write(tmp_path, "run")
-    proc = subprocess.Popen([sys.executable, "-m", "ident", "identify", str(csv)], stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "ident", "identify", str(long_log)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env={**os.environ, "TMPDIR": str(tmp)})
-    line = ""
-    while "window" not in line and proc.poll() is None:
-        line = proc.stderr.readline()
+    windows = 0
+    while windows < 2 and proc.poll() is None:
+        windows += "window" in proc.stderr.readline()
+    assert windows == 2 and proc.poll() is None, "the run ended before its last window was fitted"
     time.sleep(0.3)
     t0 = time.monotonic()
     proc.send_signal(getattr(signal, signame))
