@@ -503,6 +503,44 @@ def test_the_shape_check_refits_each_named_effect_that_has_another_shape() -> No
         assert search.shapes == {} and bool(search.constancy) == halves
 
 
+def test_a_candidate_that_does_not_carry_over_is_refitted_in_its_other_shape() -> None:
+    """A step's candidate that has another shape and fits the training part more than ``MIN_GAIN`` better while
+    predicting the held-back part more than ``MIN_GAIN`` worse (``_Search._other_shapes``) is refitted in that shape
+    from its refit; the refit takes its place where it predicts the held-back part better, and its ``start`` says
+    why. A candidate that carries over, one without another shape, and a worse or failed refit stay as they were."""
+    from ident.diagnosis.engine import _Say, _Search
+    from ident.diagnosis.models import CandidateFit, ShapeFit
+
+    class Plugin:
+        @staticmethod
+        def shape_rival_of(name: str) -> str:
+            return "" if name == "viscous_load" else "another shape"
+
+    current = Fitted((), 1000.0, 300.0, np.ones(300), 7000, 5, {})
+
+    def fit(name: str, train: float, held: float) -> CandidateFit:
+        return CandidateFit(name, Fitted((name,), train, held, np.ones(300), 7000, 6, {}), start="the screen's step")
+
+    overfits = [fit("stribeck", 10.0, 600.0), fit("hysteresis", 10.0, 600.0), fit("viscous_load", 10.0, 600.0)]
+    fits = overfits + [fit("hardening", 500.0, 200.0)]   # hardening carries over
+    better = ShapeFit(Fitted(("stribeck",), 9.0, 1.0, np.ones(300), 7000, 6, {}), 1.4, (1.3, 1.5), "an exponential",
+                      True)
+    for results, replaced in (([better, "RuntimeError: no"], True),
+                              ([replace(better, model=replace(better.model, held_cost=700.0)), None], False)):
+        pool = _Pool(results)
+        search = _Search(Plugin(), pool, 5.0, 3, _Say(False))
+        out = search._other_shapes(current, fits, 0)
+        assert [(t[1], t[2]) for t in pool.tasks] == [(f.model, f.name) for f in overfits[:2]]
+        assert out[1:] == fits[1:] and (out[0] is fits[0]) == (not replaced)
+        if replaced:
+            assert out[0].model is better.model and out[0].exhausted and out[0].name == "stribeck"
+            assert out[0].start == ("the screen's step; then an exponential: the library's shape fitted the training "
+                                    "part 100x better and predicted the held-back part 0.5x as well")
+            assert any("hysteresis could not be refitted in its other shape (RuntimeError: no)" in n
+                       for n in search.notes)
+    assert _Search(Plugin(), _Pool(), 5.0, 3, _Say(False))._other_shapes(current, fits[3:], 0) == fits[3:]
+
+
 def test_an_effect_is_adopted_in_the_shape_the_log_prefers_where_it_is_named() -> None:
     """Where a step accepts an effect that has another shape (``_Search._adopt_shape``), it is refitted in it at
     once, and the loop goes on from that refit (converged, as an accepted model is) where it fits the training data
@@ -541,7 +579,7 @@ def test_an_effect_is_adopted_in_the_shape_the_log_prefers_where_it_is_named() -
             assert (out is rival) == adopted and (out is model) == (not adopted), (n, d)
             assert [t[2] for t in pool.tasks] == ["stribeck"]
             assert plugin.converged == ([(rival, unfinished)] if adopted else [])
-            assert any(("adopted, the loop goes on from it" if adopted else "the library's shape is kept") in x
+            assert any(("adopted, the loop goes on from it" if adopted else "its shape is kept") in x
                        and f"training cost {d:+.4g} noise variances" in x and f"only beyond {bar:.4g}" in x
                        for x in search.notes), search.notes
     search = _Search(Plugin(), _Pool(["RuntimeError: no"]), 5.0, 3, _Say(False))
