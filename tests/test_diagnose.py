@@ -505,40 +505,60 @@ def test_the_shape_check_refits_each_named_effect_that_has_another_shape() -> No
 
 def test_a_candidate_that_does_not_carry_over_is_refitted_in_its_other_shape() -> None:
     """A step's candidate that has another shape and fits the training part more than ``MIN_GAIN`` better while
-    predicting the held-back part more than ``MIN_GAIN`` worse (``_Search._other_shapes``) is refitted in that shape
-    from its refit; the refit takes its place where it predicts the held-back part better, and its ``start`` says
-    why. A candidate that carries over, one without another shape, and a worse or failed refit stay as they were."""
+    predicting the held-back part more than ``MIN_GAIN`` worse (``_Search._other_shapes``) is screened and refitted in
+    that shape from the current model (``plugin.with_other_shape``), on the workers; the refit takes its place where
+    it predicts the held-back part better, and its ``start`` says why. A candidate that carries over, one without
+    another shape, one whose screen in that shape fails, and a worse or failed refit stay as they were."""
     from ident.diagnosis.engine import _Say, _Search
-    from ident.diagnosis.models import CandidateFit, ShapeFit
+    from ident.diagnosis.models import CandidateFit
+    from ident.diagnosis.screening import ScoreTest
+
+    current = Fitted((), 1000.0, 300.0, np.ones(300), 7000, 5, {})
 
     class Plugin:
         @staticmethod
         def shape_rival_of(name: str) -> str:
-            return "" if name == "viscous_load" else "another shape"
+            return "" if name == "viscous_load" else f"another {name}"
 
-    current = Fitted((), 1000.0, 300.0, np.ones(300), 7000, 5, {})
+        @staticmethod
+        def with_other_shape(m: Fitted, name: str) -> Fitted | None:
+            return None if name == "viscous_load" else replace(m, metrics={"shape": name})
+
+        @staticmethod
+        def screen(m: Fitted, names: tuple[str, ...]) -> list[ScoreTest]:
+            assert m.metrics == {"shape": names[0]}
+            stat = 0.0 if names[0] == "kinematic_error" else 50.0   # kinematic error fails the screen
+            return [ScoreTest(names[0], stat, stat, 1, 1.0 if stat == 0.0 else 1e-12)]
+
+        @staticmethod
+        def refit_cost(name: str) -> float:
+            return 1.0
 
     def fit(name: str, train: float, held: float) -> CandidateFit:
         return CandidateFit(name, Fitted((name,), train, held, np.ones(300), 7000, 6, {}), start="the screen's step")
 
-    overfits = [fit("stribeck", 10.0, 600.0), fit("hysteresis", 10.0, 600.0), fit("viscous_load", 10.0, 600.0)]
+    overfits = [fit(n, 10.0, 600.0) for n in ("stribeck", "hysteresis", "viscous_load", "kinematic_error")]
     fits = overfits + [fit("hardening", 500.0, 200.0)]   # hardening carries over
-    better = ShapeFit(Fitted(("stribeck",), 9.0, 1.0, np.ones(300), 7000, 6, {}), 1.4, (1.3, 1.5), "an exponential",
-                      True)
-    for results, replaced in (([better, "RuntimeError: no"], True),
-                              ([replace(better, model=replace(better.model, held_cost=700.0)), None], False)):
+    better = CandidateFit("stribeck", Fitted(("stribeck",), 9.0, 1.0, np.ones(300), 7000, 6, {}), exhausted=True,
+                          start="the screen's step")
+    for results, replaced in (([better, CandidateFit("hysteresis", error="RuntimeError: no")], True),
+                              ([replace(better, model=replace(better.model, held_cost=700.0)),
+                                fit("hysteresis", 9.0, 650.0)], False)):
         pool = _Pool(results)
         search = _Search(Plugin(), pool, 5.0, 3, _Say(False))
         out = search._other_shapes(current, fits, 0)
-        assert [(t[1], t[2]) for t in pool.tasks] == [(f.model, f.name) for f in overfits[:2]]
+        assert [(t[1].metrics, t[2].candidate, t[4]) for t in pool.tasks] == [
+            ({"shape": "stribeck"}, "stribeck", True), ({"shape": "hysteresis"}, "hysteresis", True)]
         assert out[1:] == fits[1:] and (out[0] is fits[0]) == (not replaced)
         if replaced:
             assert out[0].model is better.model and out[0].exhausted and out[0].name == "stribeck"
-            assert out[0].start == ("the screen's step; then an exponential: the library's shape fitted the training "
-                                    "part 100x better and predicted the held-back part 0.5x as well")
+            assert out[0].start == ("the screen's step, with another stribeck: the library's shape fitted the "
+                                    "training part 100x better and predicted the held-back part 0.5x as well")
             assert any("hysteresis could not be refitted in its other shape (RuntimeError: no)" in n
                        for n in search.notes)
-    assert _Search(Plugin(), _Pool(), 5.0, 3, _Say(False))._other_shapes(current, fits[3:], 0) == fits[3:]
+    pool = _Pool()
+    assert _Search(Plugin(), pool, 5.0, 3, _Say(False))._other_shapes(current, fits[4:], 0) == fits[4:]
+    assert pool.tasks == []
 
 
 def test_an_effect_is_adopted_in_the_shape_the_log_prefers_where_it_is_named() -> None:
@@ -582,6 +602,13 @@ def test_an_effect_is_adopted_in_the_shape_the_log_prefers_where_it_is_named() -
             assert any(("adopted, the loop goes on from it" if adopted else "its shape is kept") in x
                        and f"training cost {d:+.4g} noise variances" in x and f"only beyond {bar:.4g}" in x
                        for x in search.notes), search.notes
+        # better on the training part, significantly worse on the held-back part: kept
+        rival = Fitted(model.effects, model.train_cost - 2 * bar * s2, 4000.0, np.full(3000, 4 / 3), n, 6, {})
+        search = _Search(Plugin(), _Pool([ShapeFit(rival, 1.4, (1.3, 1.5), "an exponential decay")]), 5.0, 3,
+                         _Say(False))
+        assert search._adopt_shape(model, "stribeck", 0) is model
+        assert "but it predicts the held-back part 0.75x as well" in search.notes[0], search.notes
+        assert search.notes[0].endswith("its shape is kept")
     search = _Search(Plugin(), _Pool(["RuntimeError: no"]), 5.0, 3, _Say(False))
     assert search._adopt_shape(model, "stribeck", 0) is model
     assert search.notes == ["step 1: stribeck could not be refitted in its other shape (RuntimeError: no)"]
@@ -611,11 +638,15 @@ def test_the_final_model_is_refitted_in_the_shape_the_final_check_prefers() -> N
     final = Fitted(("stribeck", "hysteresis"), 7000.0, 3000.0, np.ones(3000), 7000, 8, {})
     s2 = final.train_cost / (final.n_train - final.k)
 
-    def rival(d: float, size: float) -> ShapeFit:
-        return ShapeFit(Fitted(final.effects, final.train_cost + d * s2, 2900.0, np.ones(3000), 7000, 8, {}), size,
-                        (0.95 * size, 1.05 * size), "another shape")
+    def rival(d: float, size: float, held: float = 1.0) -> ShapeFit:
+        return ShapeFit(Fitted(final.effects, final.train_cost + d * s2, 3000.0 * held, np.full(3000, held), 7000, 8,
+                               {}), size, (0.95 * size, 1.05 * size), "another shape")
 
-    for ds, chosen in (((-SEPARABLE - 5.0, -SEPARABLE - 1.0), "stribeck"), ((-SEPARABLE + 1.0, 3.0), None)):
+    # the third: stribeck's other shape is preferred most, but predicts the held-back part significantly worse
+    for ds, chosen, worse in (((-SEPARABLE - 5.0, -SEPARABLE - 1.0), "stribeck", 1.0),
+                              ((-SEPARABLE + 1.0, 3.0), None, 1.0),
+                              ((-SEPARABLE - 5.0, -SEPARABLE - 1.0), "hysteresis", 1.5),
+                              ((-SEPARABLE - 5.0, 3.0), None, 1.5)):
         search = _Search(Plugin(), _Pool(), 5.0, 3, _Say(False))
         search._record(final, "hysteresis", 2.0, {})
         search.doubts = {"stribeck": ["from its step"]}
@@ -623,17 +654,21 @@ def test_the_final_model_is_refitted_in_the_shape_the_final_check_prefers() -> N
         search.doubts["stribeck"].append("from the size search")
         search.notes.append("size search: stribeck moved")
         search.constancy, search.size_checks = {"checked": False, "why": "x"}, {"stribeck": []}
-        search.shapes = {"stribeck": rival(ds[0], 1.0), "hysteresis": rival(ds[1], 2.0)}
+        search.shapes = {"stribeck": rival(ds[0], 1.0, worse), "hysteresis": rival(ds[1], 2.0)}
         out = search._preferred(final, mark)
         if chosen is None:
-            assert out is final and search.notes == ["size search: stribeck moved"] and len(search.shapes) == 2
+            assert out is final and search.notes[0] == "size search: stribeck moved" and len(search.shapes) == 2
+            assert len(search.notes) == 1 + (worse > 1.0)
+            assert worse == 1.0 or ("fits the training data better, but it predicts the held-back part 0.6667x as "
+                                    "well" in search.notes[1] and "keeps its shape" in search.notes[1])
             continue
+        d, size = (ds[0], "1") if chosen == "stribeck" else (ds[1], "2")
         assert out is search.models[-1]
-        assert out.train_cost == pytest.approx(final.train_cost + ds[0] * s2)
+        assert out.train_cost == pytest.approx(final.train_cost + d * s2)
         assert search.doubts == {"stribeck": ["from its step"]} and search.shapes == {} and search.constancy == {}
         assert search.size_checks == {}
-        assert len(search.notes) == 1 and "the final check refitted stribeck with another shape" in search.notes[0]
-        assert f"better by {-ds[0]:.4g} noise variances" in search.notes[0] and "size 1 against 0.8" in search.notes[0]
+        assert len(search.notes) == 1 and f"the final check refitted {chosen} with another shape" in search.notes[0]
+        assert f"better by {-d:.4g} noise variances" in search.notes[0] and f"size {size} against 0.8" in search.notes[0]
         assert search.steps[-1].extra.get("refreshed") and search.steps[-1].added == "hysteresis"
 
 

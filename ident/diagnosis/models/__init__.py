@@ -208,6 +208,12 @@ class ModelPlugin(ABC):
         a model that adopted its other shape (the engine's ``_adopt_shape``, ``_preferred``)."""
         return ""
 
+    def with_other_shape(self, model: Fitted, name: str) -> Fitted | None:
+        """``model``, which lacks effect ``name``, set so that a candidate's refit adds ``name`` in its other shape
+        (``shape_rival_of``'s): the engine refits a candidate so where the library's shape does not carry over to
+        the held-back data. None: no such shape."""
+        return None
+
     def shape_rival(self, model: Fitted, name: str, budget: float | None) -> ShapeFit | None:
         """``model`` with effect ``name`` in its other shape (``shape_rival_of``'s; the library's where ``model`` has
         that one, ``shape_of``), every unknown refitted from ``model``'s optimum within ``budget`` (as ``refit``).

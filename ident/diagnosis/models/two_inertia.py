@@ -623,6 +623,14 @@ class TwoInertiaPlugin(ModelPlugin):
         shape = SHAPES.get(name)
         return shape.words if shape and model.state.fixed.get(shape.param) == shape.value else ""
 
+    def with_other_shape(self, model: Fitted, name: str) -> Fitted | None:
+        """``model`` with the FMU parameter of ``name``'s other shape (``SHAPES``) held at that shape's value: the
+        same model (``name`` is off in it), whose refits add ``name`` in that shape."""
+        if name not in SHAPES or model.state.rigid or name in model.effects:
+            return None
+        shape = SHAPES[name]
+        return replace(model, state=replace(model.state, fixed={**model.state.fixed, shape.param: shape.value}))
+
     def shape_rival(self, model: Fitted, name: str, budget: float | None) -> ShapeFit | None:
         """The effect in its other shape (``SHAPES``; the library's again where ``model`` has the rival's): the FMU
         parameter held at that shape's value, every unknown refitted from ``model``'s optimum, the effect's
