@@ -704,6 +704,11 @@ def test_a_shape_rival_goes_back_to_the_librarys_shape_from_an_adopted_one(monke
     back = plugin.shape_rival(there.model, "stribeck", 5.0)
     assert seen[-1][0] == {} and back.shape == shape.library and seen[-1][1][5] == pytest.approx(-9.0)
     assert plugin.shape_of(back.model, "stribeck") == ""
+    # a model without the effect, set to add it in the other shape (a candidate's refit there); none where it has it
+    bare = Fitted((), 1.0, 1.0, np.ones(1), 1, 1, {}, ti.TwoInertiaState(theta[:4], None, None, None))
+    other = plugin.with_other_shape(bare, "stribeck")
+    assert other.state.fixed == {shape.param: shape.value} and bare.state.fixed == {} and other.effects == ()
+    assert plugin.with_other_shape(library, "stribeck") is None and plugin.with_other_shape(bare, "hardening") is None
 
 
 def test_the_size_search_follows_the_profile_and_checks_where_it_ends() -> None:

@@ -20,6 +20,9 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    tentatively and its model refitted on from there (``plugin.converge``); if it is not named it is *not ruled
    out*: no name of the diagnosis is then more than tentative. Each refit carries the candidate's unknowns where
    its last refit left them (``ScoreTest.carried``): a refit that ends where it began starts again from there.
+   A candidate that has another shape (``plugin.shape_rival_of``) and whose refit fits the training part better but
+   predicts the held-back part worse is refitted in that shape too, and that refit takes its place where it predicts
+   better (``_other_shapes``).
 5. **Accept** the refitted candidate with the lowest held-back cost when it passes the one acceptance rule every effect
    (flexibility included) must pass: the held-back cost falls by more than ``MIN_GAIN``, a one-sided Diebold-Mariano
    test of the held-back losses gives p < ``DM_LEVEL``, the training BIC falls, its magnitude's 95 % interval excludes
@@ -33,7 +36,8 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    against it.
 6. **Converge** the accepted model (``plugin.converge``); an accepted effect that has another shape
    (``plugin.shape_rival_of``: an exponential Stribeck decay, a Dahl element of exponent 2) is refitted in it, and
-   the loop goes on in that shape where the log prefers it by more than the step resolves (``_adopt_shape``).
+   the loop goes on in that shape where the log prefers it by more than the step resolves and it does not predict
+   the held-back data significantly worse (``_adopt_shape``).
    Iterate; then **backward elimination**: a named effect
    whose removal does not worsen the held-back prediction significantly only stood in for later ones, and goes.
    Then **exchange**: each named effect but the last was chosen against a model still missing the effects named

@@ -19,7 +19,8 @@ rule's level detects with 95 % power):
 - **the log rejects the other shape** (it fits worse by at least that, its refit converged, and the final model
   reproduces the training data, within its level of the noise): the size stands;
 - **the log prefers it** (better by at least that): the engine makes that refit the final model and searches and
-  checks its sizes again from there (``_preferred``), once; where the check of that model prefers the shape given
+  checks its sizes again from there (``_preferred``), once, unless it predicts the held-back data significantly
+  worse (the engine's ``_predicts_worse``: a better fit of the training part that does not carry over); where the check of that model prefers the shape given
   up in turn, a shape mismatch remains: the name is tentative, and the interval is widened to hold the other shape's
   interval too;
 - **the log cannot tell the two** (in between, a refit that used up its budget first, or a worse fit from a final
