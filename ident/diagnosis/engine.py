@@ -681,8 +681,8 @@ class _Search:
         words = (f"{name} refitted with {fit.shape}: training cost {d:+.4g} noise variances, size {fit.size:.4g} (a "
                  f"step adopts another shape only beyond {bar:.4g}: the larger of what the loop tells apart and the "
                  f"{MIN_GAIN - 1:.0%} of the training cost the candidate's size search leaves unresolved)")
-        worse = _predicts_worse(model, fit.model)
-        if d > -bar or worse:
+        worse = _predicts_worse(model, fit.model) if d <= -bar else ""
+        if worse or d > -bar:
             self.notes.append(f"step {k + 1}: {words}{worse}: its shape is kept")
             return model
         self.notes.append(f"step {k + 1}: {words}: adopted, the loop goes on from it")
