@@ -20,9 +20,9 @@ rule's level detects with 95 % power):
   reproduces the training data, within its level of the noise): the size stands;
 - **the log prefers it** (better by at least that): the engine makes that refit the final model and searches and
   checks its sizes again from there (``_preferred``), once, unless it predicts the held-back data significantly
-  worse (the engine's ``_predicts_worse``: a better fit of the training part that does not carry over); where the check of that model prefers the shape given
-  up in turn, a shape mismatch remains: the name is tentative, and the interval is widened to hold the other shape's
-  interval too;
+  worse (the engine's ``_predicts_worse``: a better fit of the training part that does not carry over); where the
+  check of that model prefers the shape given up in turn, a shape mismatch remains: the name is tentative, and the
+  interval is widened to hold the other shape's interval too;
 - **the log cannot tell the two** (in between, a refit that used up its budget first, or a worse fit from a final
   model that does not reproduce the training data: a refit from a model in another basin need not find the other
   shape's best; measured on drive 5103's torque-step logs, whose Dahl exponent is 2: from the library's fits at
