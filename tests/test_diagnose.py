@@ -668,7 +668,8 @@ def test_the_final_model_is_refitted_in_the_shape_the_final_check_prefers() -> N
         assert search.doubts == {"stribeck": ["from its step"]} and search.shapes == {} and search.constancy == {}
         assert search.size_checks == {}
         assert len(search.notes) == 1 and f"the final check refitted {chosen} with another shape" in search.notes[0]
-        assert f"better by {-d:.4g} noise variances" in search.notes[0] and f"size {size} against 0.8" in search.notes[0]
+        assert f"better by {-d:.4g} noise variances" in search.notes[0]
+        assert f"size {size} against 0.8" in search.notes[0]
         assert search.steps[-1].extra.get("refreshed") and search.steps[-1].added == "hysteresis"
 
 
