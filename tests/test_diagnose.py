@@ -525,6 +525,10 @@ def test_a_candidate_that_does_not_carry_over_is_refitted_in_its_other_shape() -
             return None if name == "viscous_load" else replace(m, metrics={"shape": name})
 
         @staticmethod
+        def shape_of(m: Fitted, name: str) -> str:
+            return f"another {name}"
+
+        @staticmethod
         def screen(m: Fitted, names: tuple[str, ...]) -> list[ScoreTest]:
             assert m.metrics == {"shape": names[0]}
             stat = 0.0 if names[0] == "kinematic_error" else 50.0   # kinematic error fails the screen
@@ -552,8 +556,8 @@ def test_a_candidate_that_does_not_carry_over_is_refitted_in_its_other_shape() -
         assert out[1:] == fits[1:] and (out[0] is fits[0]) == (not replaced)
         if replaced:
             assert out[0].model is better.model and out[0].exhausted and out[0].name == "stribeck"
-            assert out[0].start == ("the screen's step, with another stribeck: the library's shape fitted the "
-                                    "training part 100x better and predicted the held-back part 0.5x as well")
+            assert out[0].start == ("the screen's step, with another stribeck: its refit in the first shape fitted "
+                                    "the training part 100x better and predicted the held-back part 0.5x as well")
             assert any("hysteresis could not be refitted in its other shape (RuntimeError: no)" in n
                        for n in search.notes)
     pool = _Pool()
@@ -710,6 +714,7 @@ def test_a_shape_rival_goes_back_to_the_librarys_shape_from_an_adopted_one(monke
     other = plugin.with_other_shape(bare, "stribeck")
     assert other.state.fixed == {shape.param: shape.value} and bare.state.fixed == {} and other.effects == ()
     assert plugin.with_other_shape(library, "stribeck") is None and plugin.with_other_shape(bare, "hardening") is None
+    assert plugin.with_other_shape(other, "stribeck").state.fixed == {}   # back to the library's
 
 
 def test_the_size_search_follows_the_profile_and_checks_where_it_ends() -> None:

@@ -509,9 +509,9 @@ class _Search:
             f = fits[i]
             if fit.model is not None and fit.model.held_cost < f.model.held_cost:
                 fits[i] = replace(fit, start=(
-                    f"{fit.start}, with {self.plugin.shape_rival_of(f.name)}: the library's shape fitted the training "
-                    f"part {current.train_cost / f.model.train_cost:.4g}x better and predicted the held-back part "
-                    f"{current.held_cost / f.model.held_cost:.4g}x as well"))
+                    f"{fit.start}, with {self.plugin.shape_of(fit.model, f.name) or 'the library shape'}: its refit "
+                    f"in the first shape fitted the training part {current.train_cost / f.model.train_cost:.4g}x "
+                    f"better and predicted the held-back part {current.held_cost / f.model.held_cost:.4g}x as well"))
             elif fit.model is None:
                 self.notes.append(f"step {k + 1}: {f.name} could not be refitted in its other shape ({fit.error})")
         return fits

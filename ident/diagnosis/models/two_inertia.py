@@ -624,12 +624,15 @@ class TwoInertiaPlugin(ModelPlugin):
         return shape.words if shape and model.state.fixed.get(shape.param) == shape.value else ""
 
     def with_other_shape(self, model: Fitted, name: str) -> Fitted | None:
-        """``model`` with the FMU parameter of ``name``'s other shape (``SHAPES``) held at that shape's value: the
-        same model (``name`` is off in it), whose refits add ``name`` in that shape."""
+        """``model`` with the FMU parameter of ``name``'s other shape (``SHAPES``) held at that shape's value, or let
+        go back to the library's where it holds it already (a model that dropped an adopted effect): the same model
+        (``name`` is off in it), whose refits add ``name`` in the other shape."""
         if name not in SHAPES or model.state.rigid or name in model.effects:
             return None
-        shape = SHAPES[name]
-        return replace(model, state=replace(model.state, fixed={**model.state.fixed, shape.param: shape.value}))
+        shape, fixed = SHAPES[name], dict(model.state.fixed)
+        if fixed.pop(shape.param, None) != shape.value:
+            fixed[shape.param] = shape.value
+        return replace(model, state=replace(model.state, fixed=fixed))
 
     def shape_rival(self, model: Fitted, name: str, budget: float | None) -> ShapeFit | None:
         """The effect in its other shape (``SHAPES``; the library's again where ``model`` has the rival's): the FMU
