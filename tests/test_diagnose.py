@@ -978,7 +978,7 @@ class _Pool:
 
 class _Recorded:
     """What ``_Search._record`` asks of a plug-in, for the loop's tests with stand-in plug-ins: the model as it is,
-    and a bare step (and every refit alike in cost, carrying nothing to the next)."""
+    and a bare step (and every refit alike in cost, carrying nothing to the next, no effect with another shape)."""
 
     @staticmethod
     def resimulated(m: Fitted) -> Fitted:
@@ -1000,6 +1000,10 @@ class _Recorded:
 
     @staticmethod
     def twin_of(m: Fitted, name: str) -> None:
+        return None
+
+    @staticmethod
+    def with_other_shape(m: Fitted, name: str) -> None:
         return None
 
 
