@@ -629,10 +629,7 @@ class TwoInertiaPlugin(ModelPlugin):
         (``name`` is off in it), whose refits add ``name`` in the other shape."""
         if name not in SHAPES or model.state.rigid or name in model.effects:
             return None
-        shape, fixed = SHAPES[name], dict(model.state.fixed)
-        if fixed.pop(shape.param, None) != shape.value:
-            fixed[shape.param] = shape.value
-        return replace(model, state=replace(model.state, fixed=fixed))
+        return replace(model, state=replace(model.state, fixed=_toggled(model.state.fixed, SHAPES[name])))
 
     def shape_rival(self, model: Fitted, name: str, budget: float | None) -> ShapeFit | None:
         """The effect in its other shape (``SHAPES``; the library's again where ``model`` has the rival's): the FMU
@@ -641,9 +638,8 @@ class TwoInertiaPlugin(ModelPlugin):
         if name not in SHAPES or model.state.rigid or name not in model.effects:
             return None
         shape, st = SHAPES[name], model.state
-        fixed, what, sign = {**st.fixed, shape.param: shape.value}, shape.rival, 1.0
-        if self.shape_of(model, name):   # back to the library's shape: the FMU's default
-            fixed, what, sign = {k: v for k, v in st.fixed.items() if k != shape.param}, shape.library, -1.0
+        what, sign = (shape.library, -1.0) if self.shape_of(model, name) else (shape.rival, 1.0)
+        fixed = _toggled(st.fixed, shape)
         rival = replace(model, state=replace(st, fixed=fixed, sim=None, cov=None, covs=None))
         head = st.theta.copy()
         for i, c in enumerate(_layout(model)):
@@ -864,6 +860,15 @@ def _carried(model: Fitted, name: str) -> tuple[str, float] | None:
         return None
     rival, own_param, _, power = TWINS[name]
     return rival, float(getattr(model.state.params, own_param)) * model.state.params.r ** power
+
+
+def _toggled(fixed: dict[str, float], shape: Shape) -> dict[str, float]:
+    """``fixed`` with ``shape``'s FMU parameter switched: held at the other shape's value, or let go back to the
+    FMU's default (the library's shape) where ``fixed`` holds it already."""
+    out = {k: v for k, v in fixed.items() if k != shape.param}
+    if fixed.get(shape.param) != shape.value:
+        out[shape.param] = shape.value
+    return out
 
 
 def _effect_indices(model: Fitted, name: str) -> list[int]:
