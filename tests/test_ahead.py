@@ -3,7 +3,8 @@
 Logs from the independent generator (seeds 4301-4303, in neither the product nor its other tests). Each fit runs
 twice in this process, with the helper thread and without it, and everything the fit reports must be equal to the
 last bit: parameters, costs, simulation counts, the stages of the continuation; under an evaluation budget that runs
-out in the middle of a Jacobian, the same simulations are charged and the same one is refused.
+out in the middle of a Jacobian, the same simulations are charged and the same one is refused. Every simulation runs
+here (none is kept for the process, ``ident.fitting.memo``), so that the helper's are compared with the fit's own.
 """
 from __future__ import annotations
 
@@ -13,9 +14,17 @@ import numpy as np
 import pytest
 
 import ident.fitting.ahead as ahead
+import ident.fitting.memo as memo
 from ident.fitting.identify import BudgetExceeded, EvaluationBudget, OutputError, base_params, identify
 from tests.ident_support import read_back
 from tests.reference.generator import identification_case
+
+
+@pytest.fixture(autouse=True)
+def _every_simulation_runs(monkeypatch):
+    """Simulations are not kept here (``memo``, its own test: test_memo.py): the second run of a fit must simulate
+    its points again, on the helper's instance, for the comparison to test the helper."""
+    monkeypatch.setattr(memo, "MODE", "off")
 
 
 def _jacobian_point(tmp_path):

@@ -42,7 +42,8 @@ MIN_SAMPLES = 2000
 BLOCK_BYTES = 64 * 2 ** 20
 #: a point's (simulation output, the FMU's work for it, the error it raised)
 Result = tuple[Any, "float | None", "Exception | None"]
-Simulate = Callable[[np.ndarray, Plant], Any]
+#: a point's simulation on a given FMU instance: (its output, the FMU's work for it)
+Simulate = Callable[[np.ndarray, Plant], "tuple[Any, float | None]"]
 _PREFIX = "hdrive-ahead"
 
 
@@ -146,7 +147,8 @@ def _run(simulate: Simulate, plant: Plant, points: list[np.ndarray], stop: Calla
         if stop():
             break
         try:
-            out[theta.tobytes()] = (simulate(theta, plant), plant.model_evaluations(), None)
+            done, work = simulate(theta, plant)
+            out[theta.tobytes()] = (done, work, None)
         except Exception as exc:  # noqa: BLE001 - raised where the fit asks for this point, as it would have been
             out[theta.tobytes()] = (None, None, exc)
     return out

@@ -55,6 +55,7 @@ from ..common.elsewhere import Elsewhere, NotRunElsewhere, Running
 from ..model.params import DriveParams, ParameterError
 from ..model.plant import Plant, PlantError
 from .ahead import Result, block, run_ahead, usable
+from . import memo
 from .logs import DriveLog, LogError
 from .noise import noise_std, residual_noise_std, white_noise_std
 from .result import BOUNDS, NAMES, Z95, Estimate, TwoInertiaFit, at_bound, param_bounds
@@ -162,6 +163,7 @@ class OutputError:
         self.log, self.base, self.stop = log, base, stop
         self.count = base.count_rad
         self.torque = log.motor_torque_Nm[: stop - 1]
+        self._torque_key = memo.digest(self.torque)
         self.y_l = log.load_pos_rad[:stop]
         self.y_m = log.motor_pos_rad[:stop] + 0.5 * self.count  # an encoder reading's expected value
         self.sigma_l = sigma_load if sigma_load is not None else max(white_noise_std(self.y_l), 1e-15)
@@ -184,15 +186,21 @@ class OutputError:
     def simulate(self, theta: np.ndarray, plant: Plant | None = None) -> tuple[np.ndarray, np.ndarray, float]:
         """(q_m, q_l + offset, offset): the model's view of the log for parameters ``theta`` (on ``plant``, another
         instance of the same FMU: ``ahead``; by default the problem's own)."""
+        return self.simulate_counted(theta, plant)[0]
+
+    def simulate_counted(self, theta: np.ndarray, plant: Plant | None = None
+                         ) -> tuple[tuple[np.ndarray, np.ndarray, float], float]:
+        """(``simulate``'s output, the FMU's work for it): a simulation this process has run already (``memo``) is
+        not run again, and counts the work it cost then."""
         plant = self.plant if plant is None else plant
         p = self.params(theta)
         d0 = float(theta[3]) * p.f_l / p.K_s  # initial deflection, a fraction of the static band
         q_m0 = float(self.y_m[0])
-        plant.reset(p, q_m_start=q_m0, q_l_start=p.load_angle_at(q_m0, d0), v_m_start=0.0, v_l_start=0.0)
-        q_m, q_l = plant.positions(self.torque, self.log.dt)
+        start = dict(q_m_start=q_m0, q_l_start=p.load_angle_at(q_m0, d0), v_m_start=0.0, v_l_start=0.0)
+        q_m, q_l, work = memo.positions(plant, p, start, self.torque, self._torque_key, self.log.dt)
         offset = float(np.mean(self.y_l - q_l))  # the load sensor's zero, projected out
         q_m = q_m + float(np.mean(self.y_m - q_m))  # and the encoder's unknown sub-count start position
-        return q_m, q_l + offset, offset
+        return (q_m, q_l + offset, offset), work
 
     def load_residual_rms(self, theta: np.ndarray) -> float:
         """RMS of the load misfit [rad] (noise plus whatever the model misses)."""
@@ -241,7 +249,8 @@ class OutputError:
         """(``simulate``'s output, the FMU's work for it): run ahead (``ahead``) or now."""
         done = self._ahead.pop(theta.tobytes(), None)
         if done is None:
-            return self.simulate(theta), (self.plant.model_evaluations() if self.budget is not None else None)
+            out, work = self.simulate_counted(theta)
+            return out, (work if self.budget is not None else None)
         out, work, error = done
         if error is not None:
             raise error
@@ -259,7 +268,7 @@ class OutputError:
                 keys.add(th.tobytes())
                 todo.append(th)
         if usable(self.stop, len(todo)) and not self.interrupted:
-            self._ahead = run_ahead(self.simulate, self.plant, self.base, todo, lambda: bool(self.interrupted))
+            self._ahead = run_ahead(self.simulate_counted, self.plant, self.base, todo, lambda: bool(self.interrupted))
         try:
             yield
         finally:

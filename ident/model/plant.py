@@ -124,6 +124,7 @@ class Plant:
         from fmpy.fmi3 import FMU3Slave
 
         path = Path(fmu_path) if fmu_path is not None else default_fmu_path(fmi_version)
+        self.fmu_path = path
         self._fmu = None
         try:  # a damaged FMU file: a named error, not a traceback from deep inside zipfile or ctypes
             self.model_description = read_model_description(str(path))
