@@ -50,12 +50,12 @@ def test_identify_gives_the_same_fit_with_and_without_kept_simulations(tmp_path,
 
 
 def test_a_diagnosis_gives_the_same_answer_with_and_without_kept_simulations(monkeypatch) -> None:
-    """A 2 s torque-step log with a hidden viscous load friction, one candidate refitted and its size searched
-    (probes start where the refit ended): the same names, sizes, intervals, candidate tables, notes and summary."""
-    log, _ = load(Case("single", 4305, "viscous_load", "strong", "steps"), duration_s=2.0, rate_hz=5000.0)
+    """A 1 s torque-step log with a hidden hardening, one candidate refitted and its size searched (probes start
+    where the refit ended): the same names, sizes, intervals, candidate tables, notes and summary."""
+    log, _ = load(Case("single", 4305, "hardening", "strong", "steps"), duration_s=1.0, rate_hz=5000.0)
     alone, kept, hits = _runs(monkeypatch, lambda: diagnose(log, resolution_pulses=0, export_fmu=False, workers=0,
-                                                            candidates=("viscous_load",)))
-    assert hits > 0
+                                                            candidates=("hardening",)))
+    assert hits > 0 and [e.name for e in kept.effects] == ["hardening"] and kept.effects[0].size_check
     assert [(e.name, e.magnitude, e.ci95, e.tentative) for e in kept.effects] == \
         [(e.name, e.magnitude, e.ci95, e.tentative) for e in alone.effects]
     for a, b in zip(kept.steps, alone.steps):

@@ -54,8 +54,8 @@ from ..common.blas import one_blas_thread
 from ..common.elsewhere import Elsewhere, NotRunElsewhere, Running
 from ..model.params import DriveParams, ParameterError
 from ..model.plant import Plant, PlantError
-from .ahead import Result, block, run_ahead, usable
 from . import memo
+from .ahead import Result, block, run_ahead, usable
 from .logs import DriveLog, LogError
 from .noise import noise_std, residual_noise_std, white_noise_std
 from .result import BOUNDS, NAMES, Z95, Estimate, TwoInertiaFit, at_bound, param_bounds
