@@ -5,9 +5,9 @@ Why: a diagnosis fits one log many times over, and its fits start where others e
 on the valley of the refit they probe, a refit starts from the model it extends, a shape's refit from the refit in
 the other shape; each problem keeps only its own last few simulations (``OutputError.CACHE``), so each new problem
 simulated again the points (and the Jacobian columns around them) that an earlier one had. Measured, one process,
-every simulation hashed: 17 % of the 26,553 simulations of a 10 s torque-step diagnosis at 5 kHz (drive 5103, weak
+every simulation hashed: 22 % of the 26,553 simulations of a 10 s torque-step diagnosis at 5 kHz (drive 5103, weak
 hysteresis, serial) repeated one run before them, 14 % of their FMU time within the last 128 distinct ones; on a 3 s
-log with one candidate, 8 % within 128. ``MEMO_BYTES`` keeps about 230 training parts of a 10 s log at 5 kHz.
+log with one candidate, 8 % of the simulations within 128. ``MEMO_BYTES`` keeps about 230 training parts of a 10 s log at 5 kHz.
 
 Why it is exact: a simulation is a function of the FMU, its parameters, the initial state, the torque samples and the
 step alone (every one starts with a reset; the FMU keeps no state between resets). The key holds all of them bit for
@@ -52,8 +52,8 @@ def digest(torque: np.ndarray) -> bytes:
 def positions(plant: Plant, params: DriveParams, initial: dict[str, float], torque: np.ndarray, torque_key: bytes,
               dt: float) -> Kept:
     """``plant`` reset to ``params`` and ``initial`` (every initial state, by name), then ``torque`` held over steps
-    of ``dt`` [s]: (q_m, q_l, the FMU's work), kept or run now. ``torque_key`` is ``digest(torque)`` (made once per
-    log part by the caller: hashing it per simulation would cost more than a short window's simulation)."""
+    of ``dt`` [s]: (q_m, q_l, the FMU's work), kept or run now. ``torque_key`` is ``digest(torque)``, made once per
+    log part by the caller rather than once per simulation."""
     key = _key(plant, params, initial, torque_key, dt) if MODE == "on" else None
     if key is not None:
         with _LOCK:
