@@ -34,9 +34,9 @@ def _runs(monkeypatch, fit):
     monkeypatch.setattr(memo, "MODE", "off")
     alone = fit()
     monkeypatch.setattr(memo, "MODE", "on")
-    before = memo.counts()["hits"]
+    before = memo.hits()
     kept = fit()
-    return alone, kept, memo.counts()["hits"] - before
+    return alone, kept, memo.hits() - before
 
 
 def test_identify_gives_the_same_fit_with_and_without_kept_simulations(tmp_path, monkeypatch) -> None:
@@ -79,10 +79,10 @@ def test_a_kept_simulation_is_charged_what_it_cost_when_it_ran(tmp_path, monkeyp
         limited.budget = EvaluationBudget(limit=5.5 * limited.stop * (1.0 if unit is None else 6.5), unit=unit)
         try:
             jac = full.jacobian(theta)
-            hits = memo.counts()["hits"]
+            hits = memo.hits()
             with pytest.raises(BudgetExceeded):
                 limited.jacobian(theta)
-            runs.append((jac, limited.budget.used, limited.evaluations, memo.counts()["hits"] - hits))
+            runs.append((jac, limited.budget.used, limited.evaluations, memo.hits() - hits))
         finally:
             full.close()
             limited.close()
