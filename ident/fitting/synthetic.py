@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..model.params import DriveParams
-from ..model.plant import Plant
+from ..model.pool import pooled_plant
 from .logs import DriveLog, LogMeta
 
 
@@ -53,7 +53,7 @@ def synthetic_log(params: DriveParams, torque: np.ndarray | None = None, *, dura
     if torque is None:
         torque = default_excitation(params, duration_s, rate_hz)
     torque = np.asarray(torque, dtype=float)
-    with Plant(params, fmi_version=fmi_version) as plant:
+    with pooled_plant(params, fmi_version) as plant:
         q_m, q_l = plant.positions(torque, 1.0 / rate_hz)
     return _measured(params, torque, q_m, q_l, rate_hz, load_noise_m, load_offset_rad, seed, "synthetic")
 
@@ -161,7 +161,7 @@ def out_of_library_log(case: str, duration_s: float = 4.0, seed: int = 3, subste
         y_next = u + (y - u) * a
         applied[k] = u + (y - u) * (1 - a) * AMPLIFIER_LAG_S / h
         y = y_next
-    with Plant(p) as plant:
+    with pooled_plant(p) as plant:
         q_m, q_l = plant.positions(applied, h)
     return _measured(p, command, q_m[::substeps], q_l[::substeps], rate, 2e-9, 1e-3, seed + 2,
                      f"synthetic ({case})")

@@ -31,10 +31,10 @@ from ..common.checks import number, whole
 from ..common.plotting import figure, save
 from ..model.params import DriveParams
 from ..model.plant import Plant
+from ..model.pool import pooled_plant
 from . import compiled
 from .compiled import check_loop
 from .controllers import ImpulseController, LinearPD, SettleError
-from .pool import pooled_plant
 
 _ZERO_STATE = dict(q_m_start=0.0, q_l_start=0.0, v_m_start=0.0, v_l_start=0.0)
 
@@ -49,7 +49,7 @@ class NoConsistentStep(RuntimeError):
 
 @contextmanager
 def _plant(plant_or_params: Plant | DriveParams | None, fmi_version: int) -> Iterator[Plant]:
-    """A Plant: the one given, or this thread's pooled one (``ident.protocols.pool``) reset to the given drive
+    """A Plant: the one given, or this thread's pooled one (``ident.model.pool``) reset to the given drive
     (nominal if None); its drive checked for what the protocols need (``require_rest``)."""
     if isinstance(plant_or_params, Plant):
         require_rest(plant_or_params.params)

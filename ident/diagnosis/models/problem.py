@@ -16,7 +16,7 @@ import numpy as np
 from ...fitting.identify import EvaluationBudget, OutputError
 from ...fitting.logs import DriveLog
 from ...model.params import DriveParams
-from ...model.plant import Plant
+from ...model.pool import pooled_plant
 from .coordinates import Coord, LogScales, coordinates, fmu_values
 
 #: switches the FMU's general (Runge-Kutta) propagator on without changing the physics (``same_propagator``): the
@@ -202,8 +202,7 @@ def simulate_full(log: DriveLog, problem: ModelProblem, theta: np.ndarray) -> tu
     q_m0 = float(problem.y_m[0])
     outputs = ("q_m", "q_l", "v_m", "v_l", "spring_torque")
     s = problem.stop
-    with Plant(p) as plant:
-        plant.reset(p, q_m_start=q_m0, q_l_start=p.load_angle_at(q_m0, d0), v_m_start=0.0, v_l_start=0.0)
+    with pooled_plant(p, q_m_start=q_m0, q_l_start=p.load_angle_at(q_m0, d0)) as plant:
         head = plant.trajectory(log.motor_torque_Nm[:s - 1], log.dt, outputs)   # the same doSteps as in one go
         work = max(plant.model_evaluations(), 1.0) / s
         tail = plant.trajectory(log.motor_torque_Nm[s - 1:-1], log.dt, outputs)
