@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import functools
 import hashlib
 import os
 import platform
@@ -105,8 +106,11 @@ def model_vars_header(token: str, table: tuple[V.Variable, ...] = V.VARIABLES) -
 
 # ------------------------------------------------------------------------------------------- XML ---------------
 
+@functools.cache
 def package_version() -> str:
-    """hdrive's version (the FMU's ``version``): the installed distribution's, else pyproject.toml's."""
+    """hdrive's version (the FMU's ``version``): the installed distribution's, else pyproject.toml's. Read once per
+    process: every ``Plant`` without an explicit path looks its FMU up by a fingerprint holding it, and reading the
+    distribution's metadata took 1.2 of the lookup's 1.7 ms."""
     try:
         from importlib.metadata import version
 

@@ -22,7 +22,6 @@ import hashlib
 import os
 import threading
 from collections import OrderedDict
-from dataclasses import astuple
 
 import numpy as np
 
@@ -86,7 +85,7 @@ def forget() -> None:
 def _key(plant: Plant, params: DriveParams, initial: dict[str, float], torque_key: bytes, dt: float) -> bytes:
     start = sorted(initial.items())
     head = f"{plant.fmu_path}|{plant.fmi_version}|{','.join(k for k, _ in start)}|".encode()
-    values = np.array([*astuple(params), *(v for _, v in start), dt], dtype=float)
+    values = np.array([*params.to_dict().values(), *(v for _, v in start), dt], dtype=float)
     return head + values.tobytes() + torque_key
 
 

@@ -9,7 +9,7 @@ f_l* = f_l/f_m, tau* = T_m/f_m, r* = r.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 from fmu_build import variables as V
@@ -148,7 +148,10 @@ class DriveParams:
         return p
 
     def to_dict(self) -> dict[str, float | int]:
-        return asdict(self)
+        """Every parameter by name, in the table's order. Every field is a number, so no copy is needed (the
+        plant's reset and the simulation memo's key read it once per simulation: ``asdict`` deep-copied each field,
+        about 0.05 ms of a 3 s log's 2.5 ms simulation)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 def parse_assignments(items: list[str] | None) -> dict[str, float]:
