@@ -1,9 +1,9 @@
 """This thread's idle plants (``ident.model.pool``): a plant handed out again gives what a new ``Plant`` gives, to
 the last bit, and two users never hold the same one.
 
-The drives and starts here are drawn for this file (a generator seeded 4306, in neither the product nor its other
-tests), each with effects on, so that a state an earlier user left behind (a hysteresis element, a stuck body, a
-counter of work) would show in the next trajectory."""
+The drives and starts here are drawn for this file (NumPy's generator seeded 4306, a seed in neither the product
+nor its other tests), each with effects on, so that a state an earlier user left behind (a hysteresis element, a
+stuck body, a counter of work) would show in the next trajectory."""
 from __future__ import annotations
 
 import numpy as np

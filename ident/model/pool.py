@@ -1,11 +1,11 @@
 """Idle ``Plant`` instances of this thread, kept for the next user instead of opening a new one.
 
 Opening a ``Plant`` unpacks the FMU into a new folder, parses its modelDescription and loads its binary: about 20 ms.
-The protocols open one per resolution run, and the fits one per problem (every refit, size probe and check of a
-diagnosis is a new problem). Measured: a serial diagnosis of a 3 s hardening log at 5 kHz opened 203 plants, 4.3 s of
-its 38 s under the profiler; with the protocols' loops compiled, a whole impulse resolution simulates in tens of
-milliseconds, about as long as the opening. So a user ``take``s this thread's idle plant of the default FMU and
-``give_back``s it when done; ``pooled_plant`` does both around a ``with`` block.
+The protocols would open one per resolution run, and the fits opened one per problem (every refit, size probe and
+check of a diagnosis is a new problem). Measured: a serial diagnosis of a 3 s hardening log at 5 kHz opened 203
+plants, 4.3 s of its 38 s under the profiler; with the protocols' loops compiled, a whole impulse resolution
+simulates in tens of milliseconds, about as long as the opening. So a user ``take``s this thread's idle plant of the
+default FMU and ``give_back``s it when done; ``pooled_plant`` does both around a ``with`` block.
 
 Why it changes no result: an FMU reset re-initialises the instance from its start values completely (the same
 results as a new instance, which the tests hold bit for bit), and ``take`` resets to the drive and to every initial
