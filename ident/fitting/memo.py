@@ -7,7 +7,8 @@ the other shape; each problem keeps only its own last few simulations (``OutputE
 simulated again the points (and the Jacobian columns around them) that an earlier one had. Measured, one process,
 every simulation hashed: 22 % of the 26,553 simulations of a 10 s torque-step diagnosis at 5 kHz (drive 5103, weak
 hysteresis, serial) repeated one run before them, 14 % of their FMU time within the last 128 distinct ones; on a 3 s
-log with one candidate, 8 % of the simulations within 128. ``MEMO_BYTES`` keeps about 230 training parts of a 10 s log at 5 kHz.
+log with one candidate, 8 % of the simulations within 128. ``MEMO_BYTES`` keeps about 230 training parts of a 10 s
+log at 5 kHz.
 
 Why it is exact: a simulation is a function of the FMU, its parameters, the initial state, the torque samples and the
 step alone (every one starts with a reset; the FMU keeps no state between resets). The key holds all of them bit for
