@@ -1,5 +1,6 @@
 """This thread's idle plants (``ident.model.pool``): a plant handed out again gives what a new ``Plant`` gives, to
-the last bit, and two users never hold the same one.
+the last bit, and two users never hold the same one; and the cheap per-simulation steps under them (a reset's
+writes, a drive changed in a few fields) give what the full ones give.
 
 The drives and starts here are drawn for this file (NumPy's generator seeded 4306, a seed in neither the product
 nor its other tests), each with effects on, so that a state an earlier user left behind (a hysteresis element, a
@@ -9,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ident import DriveParams, Plant
+from ident import DriveParams, ParameterError, Plant
 from ident.fitting.identify import OutputError
 from ident.fitting.synthetic import default_excitation, synthetic_log
 from ident.model import pool
@@ -88,3 +89,38 @@ def test_a_closed_problem_gives_its_plant_back_and_cannot_simulate() -> None:
     assert nxt.plant is plant and other.plant is not plant
     nxt.close()
     other.close()
+
+
+@pytest.mark.parametrize("fmi_version", [2, 3])
+def test_a_reset_writes_every_parameter_and_start_as_a_new_plant_reads_them(fmi_version: int) -> None:
+    """``Plant.reset`` writes the drive and the start through its own arrays (not fmpy's ``setReal``): after a run
+    with one drive, a reset to another (an integer parameter, the encoder's counts, changed too) gives what a new
+    ``Plant`` of that drive gives, on both FMI versions."""
+    torque = default_excitation(DriveParams(), 0.2, 5000.0)
+    first, second = _drive(), _drive().with_values(encoder_counts_per_rev=4096)
+    start = _start()
+    with Plant(first, fmi_version=fmi_version) as plant, Plant(second, fmi_version=fmi_version, **start) as new:
+        count = new.sample().encoder_count
+        _run(plant, torque)
+        assert plant.reset(second, **start).encoder_count == count
+        got, want = _run(plant, torque), _run(new, torque)
+        np.testing.assert_array_equal(got[0], want[0])
+        assert got[1] == want[1] and plant.sample() == new.sample()
+    with Plant(first, fmi_version=fmi_version, **start) as other:   # the integer matters: the counts differ
+        assert other.sample().encoder_count != count
+
+
+def test_a_changed_drive_checks_what_changed_and_equals_one_made_whole() -> None:
+    """``DriveParams.with_values`` checks only the fields it changes (the others were checked when their drive was
+    made): the result equals a drive made from all its values, an integer comes out an integer, and a changed value
+    out of its range is refused by name."""
+    base = _drive()
+    got = base.with_values(K_star=2.5e6, J_l_star=3100.0, b_l=2e-6, encoder_counts_per_rev=8192.0)
+    want = DriveParams(**{**base.to_dict(), "K_s": 2.5e6 * base.f_m, "J_l": 3100.0 * base.J_m, "b_l": 2e-6,
+                          "encoder_counts_per_rev": 8192})
+    assert got == want and [type(v) for v in got.to_dict().values()] == [type(v) for v in want.to_dict().values()]
+    assert base.with_values() is base
+    with pytest.raises(ParameterError, match="b_m"):
+        base.with_values(b_m=-1.0)
+    with pytest.raises(ParameterError, match="K_s"):
+        base.with_values(K_star=-3.0)
