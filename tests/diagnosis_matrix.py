@@ -19,7 +19,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +28,7 @@ import numpy as np
 
 from ident import read_log
 from ident.diagnosis.sizes import Z95
+from tests.reference import stored
 from tests.reference.generator import logs as generator
 
 CLASSES = ("single", "clean", "two_effect", "outside")
@@ -61,8 +61,9 @@ def matrix() -> list[Case]:
 
 
 def cache_dir() -> Path:
-    root = Path(os.environ.get("HDRIVE_CACHE", Path.home() / ".cache" / "hdrive"))
-    return root / "reference-logs"
+    """The matrix's logs as files, in a folder per version of the generator (``stored.reference_version``), so a
+    changed generator never leaves a log of the old one in use."""
+    return stored.cache_root() / "reference-logs" / stored.reference_version()[:16]
 
 
 def generate(case: Case, duration_s: float | None, rate_hz: float | None) -> Any:

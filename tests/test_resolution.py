@@ -22,6 +22,7 @@ from ident.protocols.resolution import (
     linear_resolution,
 )
 from tests.reference.event_driven import DriveSI, State, pulse_increments, simulate
+from tests.reference.stored import stored
 
 EPS1 = 0.1e-6
 WIDTH_S = 1e-3
@@ -79,6 +80,7 @@ def test_impulse_protocol_matches_reference(f_l_star: float) -> None:
     assert res.resolution_m == max(res.increments_m) and res.resolution_m > EPS1
 
 
+@stored
 def reference_pd_steps(ref: DriveSI, counts: int, n_steps: int, warmup: int, stop_at_failure: bool) -> list[float]:
     """PD set-point steps on the reference integrator with a floor-quantized encoder (physics.md section 3).
 

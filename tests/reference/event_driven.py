@@ -29,6 +29,8 @@ from typing import Callable, NamedTuple
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from .stored import stored
+
 RTOL = 1e-12
 # atol relative to the natural scale of each state component (see _atol): 100x tighter than rtol, yet
 # ~50x above the round-off floor.
@@ -335,6 +337,7 @@ def run_to_rest(drive: DriveSI, state: State, max_time: float = 10.0) -> State:
     return end
 
 
+@stored
 def pulse_increments(drive: DriveSI, amplitude_star: float, width_star: float, n_pulses: int,
                      state: State | None = None) -> tuple[list[float], State]:
     """Impulse protocol (physics.md section 3): ``n_pulses`` pulses, each T = A f_m for W = W* T_c, then rest.

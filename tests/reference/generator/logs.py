@@ -21,9 +21,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -44,6 +41,7 @@ from .effects import (
     merge,
     weak_magnitude,
 )
+from ..stored import atomic_write, stored
 from .engines import RKEngine, simulate
 from .linear import LinearEngine
 from .plant import Drive, Effects, HybridPlant
@@ -152,24 +150,13 @@ class GeneratedLog:
         directory.mkdir(parents=True, exist_ok=True)
         csv_path, json_path = directory / f"{stem}.csv", directory / f"{stem}.json"
         table = np.column_stack(list(self.columns().values()))
-        _atomic(csv_path, lambda f: np.savetxt(f, table, delimiter=",", fmt="%.17g",
+        atomic_write(csv_path, lambda f: np.savetxt(f, table, delimiter=",", fmt="%.17g",
                                                header=",".join(self.columns()), comments=""))
-        _atomic(json_path, lambda f: f.write(json.dumps(self.sidecar, indent=2).encode() + b"\n"))
+        atomic_write(json_path, lambda f: f.write(json.dumps(self.sidecar, indent=2).encode() + b"\n"))
         if truth:
-            _atomic(directory / f"{stem}.truth.json",
+            atomic_write(directory / f"{stem}.truth.json",
                     lambda f: f.write(json.dumps(self.truth.to_dict(), indent=2).encode() + b"\n"))
         return csv_path, json_path
-
-
-def _atomic(path: Path, write: Callable) -> None:
-    fd, name = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=f".tmp-{path.name}")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-        os.replace(name, path)
-    except BaseException:
-        Path(name).unlink(missing_ok=True)
-        raise
 
 
 def _plain(value):
@@ -423,6 +410,7 @@ def _assemble(case: Case, scenario: str, r: Run, start: tuple[float, float], eff
     return GeneratedLog(time_s, r.torque, encoder, load, sidecar, truth, r.q_m, r.q_l)
 
 
+@stored
 def identification_case(seed: int, excitation: str | None = None, duration_s: float = DEFAULT_DURATION_S,
                         rate_hz: float | None = None) -> GeneratedLog:
     """A clean log for identification; ``excitation`` None draws one of ``IDENTIFICATION_KINDS``."""
@@ -431,6 +419,7 @@ def identification_case(seed: int, excitation: str | None = None, duration_s: fl
     return _generate(seed, "identification", excitation, duration_s, rate_hz, [])
 
 
+@stored
 def clean_case(seed: int, excitation: str = "default", duration_s: float = DEFAULT_DURATION_S,
                rate_hz: float | None = None) -> GeneratedLog:
     """A log with no hidden effect (diagnosis must name nothing)."""
@@ -442,6 +431,7 @@ def _library_effect(effect: str) -> None:
         raise ValueError(f"effect {effect!r} is not a library effect; use one of {', '.join(LIBRARY_EFFECTS)}")
 
 
+@stored
 def diagnosis_case(seed: int, effect: str, magnitude_class: str, excitation: str = "default",
                    duration_s: float = DEFAULT_DURATION_S, variant: str | None = None,
                    rate_hz: float | None = None) -> GeneratedLog:
@@ -450,6 +440,7 @@ def diagnosis_case(seed: int, effect: str, magnitude_class: str, excitation: str
     return _generate(seed, "diagnosis", excitation, duration_s, rate_hz, [(effect, variant, magnitude_class)])
 
 
+@stored
 def sized_case(seed: int, effect: str, magnitude: float, excitation: str = "default", variant: str | None = None,
                duration_s: float = DEFAULT_DURATION_S, rate_hz: float | None = None) -> GeneratedLog:
     """A log with one library effect hidden at ``magnitude`` (the effect's own unit, ``effects.py``; capped as
@@ -461,6 +452,7 @@ def sized_case(seed: int, effect: str, magnitude: float, excitation: str = "defa
     return _generate(seed, "diagnosis", excitation, duration_s, rate_hz, [(effect, variant, float(magnitude))])
 
 
+@stored
 def two_effect_case(seed: int, effects: tuple[str, str] | None = None,
                     magnitude_classes: tuple[str, str] | None = None, excitation: str = "default",
                     duration_s: float = DEFAULT_DURATION_S, rate_hz: float | None = None) -> GeneratedLog:
@@ -477,6 +469,7 @@ def two_effect_case(seed: int, effects: tuple[str, str] | None = None,
     return _generate(seed, "two_effect", excitation, duration_s, rate_hz, specs)
 
 
+@stored
 def outside_library_case(seed: int, effect: str | None = None, magnitude_class: str | None = None,
                          excitation: str = "default", duration_s: float = DEFAULT_DURATION_S,
                          rate_hz: float | None = None) -> GeneratedLog:
