@@ -31,6 +31,7 @@ from scipy.integrate import quad, solve_ivp
 
 from fmu_build import variables as V
 from ident import DriveParams, ParameterError, Plant, PlantError
+from tests.reference.stored import stored
 
 NOMINAL = DriveParams()
 EFFECTS = ("b_m", "b_l", "stribeck_ratio", "stribeck_velocity", "friction_asymmetry", "hardening",
@@ -582,6 +583,14 @@ def test_energy_balance_with_effects(fmi: int) -> None:
 
 # ---------------------------------------------------------------------------- 8. cross-check with scipy ----------
 
+@stored
+def reference_run(p: DriveParams, q_l: float, u: np.ndarray, dt: float) -> np.ndarray:
+    """The independent reference's states (q_m, q_l, v_m, v_l, z) at every sample of the command ``u``, from rest
+    at (0, ``q_l``); the same for both FMI versions, and kept between runs (``tests.reference.stored``)."""
+    ref = Reference(p, q_l=q_l)
+    return np.array([ref.y.copy()] + [ref.advance(T, dt) for T in u])
+
+
 @pytest.mark.parametrize("exponent, shape", [(1.0, 2.0), (2.0, 2.0), (1.5, 2.0), (2.0, 1.0)],
                          ids=["dahl", "dahl-2", "dahl-1.5", "exponential-dahl-2"])
 def test_all_effects_against_scipy_reference(fmi: int, exponent: float, shape: float) -> None:
@@ -593,11 +602,7 @@ def test_all_effects_against_scipy_reference(fmi: int, exponent: float, shape: f
     u = pulse_train(p, dt, 0.16)
     with Plant(p, fmi_version=fmi, q_l_start=Q_L_EQ) as plant:
         out = traj(plant, u, dt, ("q_m", "q_l", "v_m", "v_l", "hysteresis_state"))
-    ref = Reference(p, q_l=Q_L_EQ)
-    got = [ref.y.copy()]
-    for T in u:
-        got.append(ref.advance(T, dt))
-    got = np.array(got)
+    got = reference_run(p, Q_L_EQ, u, dt)
     err_m = np.max(np.abs(out[:, 0] - got[:, 0]))
     err_l = np.max(np.abs(out[:, 1] - got[:, 1]))
     err_z = np.max(np.abs(out[:, 4] - got[:, 4]))
@@ -618,8 +623,7 @@ def test_small_hysteresis_against_scipy_reference(hysteresis_torque: float) -> N
     u = pulse_train(p, dt, 0.16)
     with Plant(p, q_l_start=Q_L_EQ) as plant:
         out = traj(plant, u, dt, ("q_m", "q_l", "v_m", "v_l", "hysteresis_state"))
-    ref = Reference(p, q_l=Q_L_EQ)
-    got = np.array([ref.y.copy()] + [ref.advance(T, dt) for T in u])
+    got = reference_run(p, Q_L_EQ, u, dt)
     assert np.ptp(out[:, 4]) > hysteresis_torque  # the element reverses
     assert np.max(np.abs(out[:, 0] - got[:, 0])) < 1e-10 and np.max(np.abs(out[:, 1] - got[:, 1])) < 1e-12
     assert np.max(np.abs(out[:, 4] - got[:, 4])) < 1e-8 * (hysteresis_torque + p.f_l)  # of the load's torques
