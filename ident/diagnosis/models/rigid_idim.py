@@ -137,6 +137,8 @@ class Spec:
 
 
 FUNCTIONS: dict[tuple, ca.Function] = {}
+MAPPED: dict[tuple[str, int], ca.Function] = {}
+MAPPED_KEPT = 32
 
 
 def library_theta(spec: Spec, b: dict[str, Any], v: Any, s: Any, vs: Any) -> dict[str, Any]:
@@ -176,11 +178,22 @@ def force_function(spec: Spec) -> ca.Function:
     return FUNCTIONS[key]
 
 
+def mapped_force(spec: Spec, rows: int) -> ca.Function:
+    """``force_function(spec)`` mapped over ``rows`` rows, kept: CasADi builds a new Function at each ``map`` (on the
+    EMPS diagnosis, 345 maps of the same few took 4.4 s of its 26 s). At most ``MAPPED_KEPT`` are kept (a process
+    that reads logs of many lengths starts over)."""
+    f = force_function(spec)
+    key = (f.name(), rows)
+    if key not in MAPPED:
+        if len(MAPPED) >= MAPPED_KEPT:
+            MAPPED.clear()
+        MAPPED[key] = f.map(rows)
+    return MAPPED[key]
+
+
 def raw_columns(spec: Spec, p: Processed, s: float, vs: float) -> np.ndarray:
     """Regressor columns on the raw rows (exact: the force is linear in the coordinates; evaluated at 1)."""
-    f = force_function(spec)
-    n = p.v_raw.size
-    fm = f.map(n)
+    fm = mapped_force(spec, p.v_raw.size)
     _, J = fm(p.a_raw[None, :], p.v_raw[None, :], np.ones(len(spec.coords())), s, vs)
     return np.asarray(J, dtype=float).T
 
@@ -257,8 +270,7 @@ class RigidModelFit:
 
     def predict_raw(self, p: Processed) -> np.ndarray:
         """The library's force on the raw rows, at the fitted parameters (CasADi ``rigid_force``)."""
-        f = force_function(self.spec).map(p.v_raw.size)
-        F, _ = f(p.a_raw[None, :], p.v_raw[None, :], self.beta, self.s, self.vs)
+        F, _ = mapped_force(self.spec, p.v_raw.size)(p.a_raw[None, :], p.v_raw[None, :], self.beta, self.s, self.vs)
         return np.asarray(F, dtype=float).ravel()
 
 
