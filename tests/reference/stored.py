@@ -37,6 +37,7 @@ import scipy
 F = TypeVar("F", bound=Callable[..., Any])
 
 REFERENCE_DIR = Path(__file__).resolve().parent
+REPO = REFERENCE_DIR.parents[1]
 
 
 def cache_root() -> Path:
@@ -49,10 +50,12 @@ def cache_root() -> Path:
 @functools.lru_cache(maxsize=None)
 def reference_version(extra_file: str = "") -> str:
     """A hash of the source of every file of ``tests/reference`` (and of ``extra_file``, if given) and of the
-    Python, NumPy and SciPy versions: what a reference's result depends on besides its arguments."""
+    Python, NumPy and SciPy versions: what a reference's result depends on besides its arguments. Files are named
+    relative to the repository, so every clone of the same code shares the entries."""
     h = hashlib.sha256()
     for path in sorted(REFERENCE_DIR.rglob("*.py")) + ([Path(extra_file)] if extra_file else []):
-        h.update(str(path.relative_to(path.anchor)).encode())
+        where = path.resolve()
+        h.update((where.relative_to(REPO).as_posix() if where.is_relative_to(REPO) else where.name).encode())
         h.update(path.read_bytes())
     h.update(f"{platform.python_version()}|{np.__version__}|{scipy.__version__}".encode())
     return h.hexdigest()
