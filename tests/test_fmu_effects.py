@@ -586,7 +586,8 @@ def test_energy_balance_with_effects(fmi: int) -> None:
 @stored
 def reference_run(p: DriveParams, q_l: float, u: np.ndarray, dt: float) -> np.ndarray:
     """The independent reference's states (q_m, q_l, v_m, v_l, z) at every sample of the command ``u``, from rest
-    at (0, ``q_l``); the same for both FMI versions, and kept between runs (``tests.reference.stored``)."""
+    at (0, ``q_l``); the same for both FMI versions, and kept between runs (``tests.reference.stored``: keyed by
+    ``p``'s field values and this file's source; ``Reference`` reads nothing of ``p`` but its fields)."""
     ref = Reference(p, q_l=q_l)
     return np.array([ref.y.copy()] + [ref.advance(T, dt) for T in u])
 

@@ -3,10 +3,10 @@
 The references (the log generator's adaptive DOP853 with located events, the event-driven integrator of the base
 model, the FMU-effects tests' SciPy integrator of every effect) are slow by design: plain Python and SciPy at
 tolerances far below the product's. On the 2-core machine of ``bench/README.md`` they are about 220 s of the default
-run's 860 s of test time. They are also pure functions of
-their arguments, their own source and the numerical libraries, so a result made once is the result: ``stored``
-keeps each call's result under ``$HDRIVE_CACHE/reference-results`` (the root of the FMU builds' cache: else
-``$XDG_CACHE_HOME/hdrive``, else ``~/.cache/hdrive``), named by a hash of
+run's 860 s of test time. They are also pure functions of their arguments, their own source and the numerical
+libraries, so a result made once is the result: ``stored`` keeps each call's result under
+``$HDRIVE_CACHE/reference-results`` (the root of the FMU builds' cache: else ``$XDG_CACHE_HOME/hdrive``, else
+``~/.cache/hdrive``), named by a hash of
 
 * the function's module and name, and its arguments (pickled: ints, floats to the bit, strings, arrays, dataclasses);
 * the source of every file of ``tests/reference`` and of the function's own file;

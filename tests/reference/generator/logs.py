@@ -151,11 +151,11 @@ class GeneratedLog:
         csv_path, json_path = directory / f"{stem}.csv", directory / f"{stem}.json"
         table = np.column_stack(list(self.columns().values()))
         atomic_write(csv_path, lambda f: np.savetxt(f, table, delimiter=",", fmt="%.17g",
-                                               header=",".join(self.columns()), comments=""))
+                                                    header=",".join(self.columns()), comments=""))
         atomic_write(json_path, lambda f: f.write(json.dumps(self.sidecar, indent=2).encode() + b"\n"))
         if truth:
             atomic_write(directory / f"{stem}.truth.json",
-                    lambda f: f.write(json.dumps(self.truth.to_dict(), indent=2).encode() + b"\n"))
+                         lambda f: f.write(json.dumps(self.truth.to_dict(), indent=2).encode() + b"\n"))
         return csv_path, json_path
 
 
