@@ -65,12 +65,12 @@ def test_stored_references_equal_fresh_ones(cache, monkeypatch) -> None:
     """The generator's log and the event-driven integrator's increments, read from the store, are bit for bit those
     the references make with the store off."""
     drive = DriveSI.from_nondim(K_star=1e6, J_l_star=2500, f_l_star=0.1)
-    kept = [identification_case(4133, "pulse_train", duration_s=0.3), identification_case(4133, "pulse_train",
-                                                                                          duration_s=0.3)]
+    kept = [identification_case(4133, "pulse_train", duration_s=0.3) for _ in range(2)]
     incs = [pulse_increments(drive, 1.5, 2.0, 3)[0], pulse_increments(drive, 1.5, 2.0, 3)[0]]
     assert len(list(cache.glob("*.pkl"))) == 2
     monkeypatch.setenv("HDRIVE_REFERENCE_CACHE", "0")
-    fresh, fresh_incs = identification_case(4133, "pulse_train", duration_s=0.3), pulse_increments(drive, 1.5, 2.0, 3)[0]
+    fresh = identification_case(4133, "pulse_train", duration_s=0.3)
+    fresh_incs = pulse_increments(drive, 1.5, 2.0, 3)[0]
     for g in kept:
         for name, column in fresh.columns().items():
             assert np.array_equal(getattr(g, name), column), name

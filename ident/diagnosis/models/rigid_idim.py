@@ -180,8 +180,8 @@ def force_function(spec: Spec) -> ca.Function:
 
 def mapped_force(spec: Spec, rows: int) -> ca.Function:
     """``force_function(spec)`` mapped over ``rows`` rows, kept: CasADi builds a new Function at each ``map`` (the EMPS
-    diagnosis made 345 maps of a few; under the profiler they took 4.4 s of its 26 s). At most ``MAPPED_KEPT`` are kept (a process
-    that reads logs of many lengths starts over)."""
+    diagnosis made 345 maps of a few; under the profiler they took 4.4 s of its 26 s). At most ``MAPPED_KEPT`` are
+    kept (a process that reads logs of many lengths starts over)."""
     f = force_function(spec)
     key = (f.name(), rows)
     if key not in MAPPED:
