@@ -187,6 +187,9 @@ def test_acceptance_rule():
     v = verdict(base, same)
     assert not v.accepted and v.reasons
     assert dm_pvalue(noise**2, noise**2) == 1.0
+    # a candidate that predicts the held-back data worse is said to raise its cost (not to "fall 0.8x")
+    v = verdict(better, model(noise / math.sqrt(0.8), 5, 7000 * 1.0))
+    assert v.reasons[0] == f"held-back cost rises {1 / 0.8:.4g}x, where the rule asks a fall of more than {MIN_GAIN:g}x"
 
 
 # ------------------------------------------------------------------------------------------ diagnoses -----------
@@ -1178,7 +1181,7 @@ def test_a_refit_that_removes_less_than_chance_leaves_its_candidate_not_ruled_ou
         assert "removed 0.02 noise variances" in c["reason"] and "predicted 1141" in c["reason"]
         assert "did not test it" in table.loc["viscous_motor", "why"]
         assert d["candidate"] == "stribeck" and "lowers the training cost 1.5x" in d["reason"]
-        assert "held-back cost 0.8x" in d["reason"] and "did not test it" in table.loc["stribeck", "why"]
+        assert "raises the held-back cost 1.25x" in d["reason"] and "did not test it" in table.loc["stribeck", "why"]
         search.named = [NamedEffect("stribeck", 1.0, (0.9, 1.1), "1", "named at a later step", None, None)]
         assert [c["candidate"] for c in search.not_ruled_out] == ["viscous_motor"]   # named: not "not ruled out"
 

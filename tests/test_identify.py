@@ -103,7 +103,7 @@ def test_cli_predict_json_carries_the_fit(tmp_path: Path) -> None:
         assert d[name]["identifiable"] is True and d[name]["reason"] == ""
     assert d["sigma_load_rad"] > 0 and d["warnings"] == [] and d["identifiable"] is True
     assert {c["check"] for c in d["data_checks"]} == {"sample_rate", "encoder_quantization", "gear_ratio",
-                                                      "load_sensor"}
+                                                      "load_sensor", "torque"}
     assert all({"check", "status", "detail"} <= set(c) for c in d["data_checks"])
     assert {"K_s_Nm_per_rad", "J_l_kgm2", "f_l_Nm"} <= set(d["si"])
     assert {"nrmse_motor", "nrmse_load", "relative_error_pct"} <= set(d["fit"])

@@ -150,7 +150,8 @@ def verdict(current: Fitted, cand: Fitted) -> Verdict:
     dbic = cand.bic() - current.bic()
     v = Verdict(gain, p, dbic)
     if not gain > MIN_GAIN:
-        v.reasons.append(f"held-back cost falls {gain:.4g}x, not more than {MIN_GAIN:g}x")
+        v.reasons.append(f"held-back cost falls {gain:.4g}x, not more than {MIN_GAIN:g}x" if gain >= 1 else
+                         f"held-back cost rises {1 / gain:.4g}x, where the rule asks a fall of more than {MIN_GAIN:g}x")
     if not p < DM_LEVEL:
         v.reasons.append(f"Diebold-Mariano p = {p:.3g}, not below {DM_LEVEL:g}")
     if not dbic < 0:
@@ -996,9 +997,10 @@ def _untested(current: Fitted, fits: list[CandidateFit], passing: list[ScoreTest
                                 f"{t.statistic:.4g}: the refit did not test it")
         elif not _carries_over(current, f.model):
             out[t.candidate] = (f"its refit lowers the training cost {current.train_cost / f.model.train_cost:.4g}x "
-                                f"and the held-back cost {current.held_cost / f.model.held_cost:.4g}x (it predicts "
-                                "the held-back part worse): what it fitted does not carry over, so the held-back "
-                                "part, which judges, neither shows it nor rules it out (the refit did not test it)")
+                                f"and raises the held-back cost {f.model.held_cost / current.held_cost:.4g}x (it "
+                                "predicts the held-back part worse): what it fitted does not carry over, so the "
+                                "held-back part, which judges, neither shows it nor rules it out (the refit did not "
+                                "test it)")
     return out
 
 
@@ -1247,8 +1249,8 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
 
 def _data_checks(log: DriveLog, holdout: DriveLog | None) -> None:
     """Data errors before physics: the identifier's checks of every log (``ident.fitting.datachecks``: the
-    sidecar's sample rate against the time column, the encoder grid, the gear ratio and the load sensor's unit and
-    sign), so that no effect is named for a mistake in the data. Raises ``LogError`` naming each failed check."""
+    sidecar's sample rate against the time column, the encoder grid, the gear ratio, the load sensor's unit and
+    sign, the torque's unit and sign), so that no effect is named for a mistake in the data. Raises ``LogError`` naming each failed check."""
     from ..fitting.datachecks import check_log
 
     for item in (log, holdout):

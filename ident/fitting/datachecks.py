@@ -20,6 +20,24 @@ check before anything is fitted.
   each with either sign): a match names it, no match is a gear-ratio error naming both numbers. With too little
   motor travel to decide (standard error above ``DECIDABLE`` of r, or fewer than ``MIN_STANDSTILLS`` standstills)
   the check is skipped -- except for a unit or sign mistake clear even then (degrees: 57x).
+- ``torque``: the work the torque column does on the motor, W = sum T_k (q_m[k+1] - q_m[k]) (the torque held over each
+  sample interval), against what the motor's own Coulomb friction at the sidecar's ``f_m_Nm`` dissipates over its
+  travel, f_m x (the motor's travel, reversals within one count left out: an encoder flickering at an edge does no
+  work). The drive is passive and starts at rest, so the torque's work is what every friction dissipates plus what the
+  bodies and the spring hold at the end, less the spring's energy at the start (within the static band: at most
+  f_l^2 / (2 K_s), small against the frictions' work over any real travel): at least the motor's Coulomb work, and at most what the library's frictions
+  can dissipate, (1 + s)(1 + |a|)(1 + f_l* r) times it (the FMU's largest Stribeck excess s and asymmetry a, the
+  identifier's largest f_l*; a viscous friction beside them may add more). The ratio rho = W / (f_m travel) is
+  1.00-1.28 on every log of the independent generator in the cache at the time of writing (about 100: clean, single-
+  and two-effect, outside the library, 1-10 s, torque steps and the default design). Its error from the encoder's
+  quantization is at most one count times the torque's total variation (summation by parts); where that is above
+  ``WORK_ERROR`` of the larger of W and f_m x travel the log cannot tell (skipped). rho below -``WORK_LOW`` is an
+  error (the motor moved against the torque: the column's sign, or the encoder's, is flipped; a flip turns rho >= 1
+  into rho <= -1, and ``WORK_LOW`` = 0.5, halfway, leaves room for a Coulomb level down to half the sidecar's); |rho|
+  below ``WORK_LOW`` is an error (the torque did less than half the work the motor's friction alone takes: the column
+  reads too small, or ``f_m_Nm`` too large, by about 1/rho); rho above the largest dissipation is an error (the column
+  reads too large, e.g. mN.m for N.m gives 1000x, or ``f_m_Nm`` is too small). Factors between those bounds are not
+  caught.
 """
 from __future__ import annotations
 
@@ -28,13 +46,18 @@ from typing import Any
 
 import numpy as np
 
+from fmu_build import variables as V
+
 from .logs import DriveLog, LogError, check_sample_rate
+from .result import BOUNDS
 
 COUNT_TOLERANCE = 0.01
 RATIO_TOLERANCE = 0.01
 DECIDABLE = 0.05
 MIN_STANDSTILLS = 4
 REST_SAMPLES = 16
+WORK_LOW = 0.5      # see the module docstring (``torque``)
+WORK_ERROR = 0.25
 
 
 def _status(check: str, status: str, detail: str, **values: Any) -> dict[str, Any]:
@@ -154,9 +177,65 @@ def _travel_ratio(log: DriveLog, qm: np.ndarray, ql: np.ndarray) -> tuple[float,
     return s, s / r, se_k
 
 
+def most_dissipation(r: float) -> float:
+    """The largest ratio of the frictions' work to the motor's Coulomb work f_m x travel the library allows (module
+    docstring, ``torque``): (1 + s)(1 + |a|)(1 + f_l* r) at the FMU's largest Stribeck excess and asymmetry and the
+    identifier's largest f_l*."""
+    s, a = V.BY_NAME["stribeck_ratio"].hi, V.BY_NAME["friction_asymmetry"].hi
+    return (1 + s) * (1 + a) * (1 + BOUNDS["f_l_star"][1] * abs(r))
+
+
+def motor_travel(q: np.ndarray, count: float) -> float:
+    """The motor's travel [rad] with reversals within one count left out (a play of one count: an encoder
+    flickering at an edge adds nothing)."""
+    moved = q[np.flatnonzero(np.diff(q)) + 1]
+    travel, pos = 0.0, float(q[0])
+    for x in moved:
+        if x > pos + count:
+            travel, pos = travel + x - count - pos, x - count
+        elif x < pos - count:
+            travel, pos = travel + pos - count - x, x + count
+    return travel
+
+
+def check_torque(log: DriveLog) -> dict[str, Any]:
+    """The torque column's work on the motor against the motor's Coulomb work (module docstring, ``torque``)."""
+    q, T, f_m = log.motor_pos_rad, log.motor_torque_Nm, log.meta.f_m_Nm
+    if not f_m or f_m <= 0:
+        return _status("torque", "skipped", "no motor Coulomb friction f_m_Nm in the sidecar to measure the work by")
+    steps = np.abs(np.diff(q))
+    count = 2 * math.pi / log.meta.encoder_counts_per_rev if log.meta.encoder_counts_per_rev else \
+        float(np.min(steps[steps > 0])) if np.any(steps > 0) else 0.0
+    coulomb = f_m * motor_travel(q, count)
+    error = count * (float(np.sum(np.abs(np.diff(T)))) + abs(float(T[0])) + abs(float(T[-1])))
+    work = float(np.sum(T[:-1] * np.diff(q)))
+    if coulomb <= 0 or error > WORK_ERROR * max(coulomb, abs(work)):
+        return _status("torque", "skipped", f"the motor's travel ({coulomb / f_m if f_m else 0:.3g} rad) is too short "
+                       "for the torque's work to be measured against its friction's (within a quarter)")
+    rho = work / coulomb
+    top = most_dissipation(log.meta.r)
+    where = (f"{log.source}: column motor_torque_Nm does {rho:.3g} x the work the motor's Coulomb friction "
+             f"(the sidecar's f_m_Nm = {f_m:.4g}) dissipates over its travel of {coulomb / f_m:.4g} rad "
+             f"(+-{error / coulomb:.2g})")
+    values = {"work_over_coulomb": rho, "work_error": error / coulomb, "most_dissipation": top}
+    if rho < -WORK_LOW:
+        return _status("torque", "error", f"{where}: the motor moved against the torque; the torque's sign (or the "
+                       "encoder's) looks flipped: make motor_torque_Nm positive where it drives motor_pos_rad up",
+                       **values)
+    if rho < WORK_LOW:
+        return _status("torque", "error", f"{where}, less than half what a passive drive needs (at least 1): the "
+                       f"column reads too small{f' by about {1 / rho:.3g}x' if rho > 0 else ''} (another unit, or "
+                       "a current?), or f_m_Nm is too large; give the motor torque in N.m", **values)
+    if rho > top:
+        return _status("torque", "error", f"{where}, more than the library's frictions can dissipate ({top:.3g} x "
+                       "at the largest Stribeck excess, asymmetry and f_l*): the column reads too large (mN.m gives "
+                       "1000x, N.cm 100x), or f_m_Nm is too small; give the motor torque in N.m", **values)
+    return _status("torque", "ok", f"{where}: within a passive drive's range [1, {top:.3g}]", **values)
+
+
 def check_log(log: DriveLog, raise_errors: bool = False) -> list[dict[str, Any]]:
     """All checks of the module docstring; with ``raise_errors`` a ``LogError`` naming every failed one."""
-    results = [check_rate(log), check_encoder(log), *check_travel(log)]
+    results = [check_rate(log), check_encoder(log), *check_travel(log), check_torque(log)]
     errors = [c["detail"] for c in results if c["status"] == "error"]
     if errors and raise_errors:
         raise DataCheckError("; ".join(errors), results)
