@@ -1250,7 +1250,8 @@ def diagnose(log: DriveLog, *, model: str = "two-inertia", holdout: DriveLog | N
 def _data_checks(log: DriveLog, holdout: DriveLog | None) -> None:
     """Data errors before physics: the identifier's checks of every log (``ident.fitting.datachecks``: the
     sidecar's sample rate against the time column, the encoder grid, the gear ratio, the load sensor's unit and
-    sign, the torque's unit and sign), so that no effect is named for a mistake in the data. Raises ``LogError`` naming each failed check."""
+    sign, the torque's unit and sign), so that no effect is named for a mistake in the data. Raises ``LogError``
+    naming each failed check."""
     from ..fitting.datachecks import check_log
 
     for item in (log, holdout):

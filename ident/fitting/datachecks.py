@@ -24,15 +24,15 @@ check before anything is fitted.
   sample interval), against what the motor's own Coulomb friction at the sidecar's ``f_m_Nm`` dissipates over its
   travel, f_m x (the motor's travel, reversals within one count left out: an encoder flickering at an edge does no
   work). The drive is passive and starts at rest, so the torque's work is what every friction dissipates plus what the
-  bodies and the spring hold at the end, less the spring's energy at the start (within the static band: at most
-  f_l^2 / (2 K_s), small against the frictions' work over any real travel): at least the motor's Coulomb work, and at most what the library's frictions
-  can dissipate, (1 + s)(1 + |a|)(1 + f_l* r) times it (the FMU's largest Stribeck excess s and asymmetry a, the
-  identifier's largest f_l*; a viscous friction beside them may add more). The ratio rho = W / (f_m travel) is
-  1.00-1.28 on every log of the independent generator in the cache at the time of writing (about 100: clean, single-
-  and two-effect, outside the library, 1-10 s, torque steps and the default design). Its error from the encoder's
-  quantization is at most one count times the torque's total variation (summation by parts); where that is above
-  ``WORK_ERROR`` of the larger of W and f_m x travel the log cannot tell (skipped). rho below -``WORK_LOW`` is an
-  error (the motor moved against the torque: the column's sign, or the encoder's, is flipped; a flip turns rho >= 1
+  bodies and the spring hold at the end, less the spring's energy at the start (within the static band: at most f_l^2
+  / (2 K_s), small against the frictions' work over any real travel): at least the motor's Coulomb work, and at most
+  what the library's frictions can dissipate, (1 + s)(1 + |a|)(1 + f_l* r) times it (the FMU's largest Stribeck excess
+  s and asymmetry a, the identifier's largest f_l*; a viscous friction beside them may add more). The ratio rho = W /
+  (f_m travel) is 1.00-1.28 on every log of the independent generator in the cache at the time of writing (about 100:
+  clean, single- and two-effect, outside the library, 1-10 s, torque steps and the default design). Its error from the
+  encoder's quantization is at most one count times the torque's total variation (summation by parts); where that is
+  above ``WORK_ERROR`` of the larger of W and f_m x travel the log cannot tell (skipped). rho below -``WORK_LOW`` is
+  an error (the motor moved against the torque: the column's sign, or the encoder's, is flipped; a flip turns rho >= 1
   into rho <= -1, and ``WORK_LOW`` = 0.5, halfway, leaves room for a Coulomb level down to half the sidecar's); |rho|
   below ``WORK_LOW`` is an error (the torque did less than half the work the motor's friction alone takes: the column
   reads too small, or ``f_m_Nm`` too large, by about 1/rho); rho above the largest dissipation is an error (the column
@@ -210,7 +210,7 @@ def check_torque(log: DriveLog) -> dict[str, Any]:
     error = count * (float(np.sum(np.abs(np.diff(T)))) + abs(float(T[0])) + abs(float(T[-1])))
     work = float(np.sum(T[:-1] * np.diff(q)))
     if coulomb <= 0 or error > WORK_ERROR * max(coulomb, abs(work)):
-        return _status("torque", "skipped", f"the motor's travel ({coulomb / f_m if f_m else 0:.3g} rad) is too short "
+        return _status("torque", "skipped", f"the motor's travel ({coulomb / f_m:.3g} rad) is too short "
                        "for the torque's work to be measured against its friction's (within a quarter)")
     rho = work / coulomb
     top = most_dissipation(log.meta.r)
@@ -230,7 +230,8 @@ def check_torque(log: DriveLog) -> dict[str, Any]:
         return _status("torque", "error", f"{where}, more than the library's frictions can dissipate ({top:.3g} x "
                        "at the largest Stribeck excess, asymmetry and f_l*): the column reads too large (mN.m gives "
                        "1000x, N.cm 100x), or f_m_Nm is too small; give the motor torque in N.m", **values)
-    return _status("torque", "ok", f"{where}: within a passive drive's range [1, {top:.3g}]", **values)
+    return _status("torque", "ok", f"{where}: a passive drive's (from 1x up to {top:.3g}x; an error below "
+                   f"{WORK_LOW:g}x or above {top:.3g}x)", **values)
 
 
 def check_log(log: DriveLog, raise_errors: bool = False) -> list[dict[str, Any]]:
