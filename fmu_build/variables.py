@@ -116,6 +116,12 @@ VARIABLES: tuple[Variable, ...] = (
     _param("hysteresis_exponent", 114, 1.0, 1.0, 4.0, "1",
            "Exponent n of the Dahl element z' = sigma dd |1 - sgn(dd) z/H|^n sgn(1 - sgn(dd) z/H): 1 the classic "
            "Dahl (the default), larger a slower, algebraic approach to H"),
+    _param("hardening_exponent", 115, 2.0, 1.0, 4.0, "1",
+           "Exponent p of the hardening: spring torque K_s (d + hardening d |d|^p hardening_deflection^(2 - p)); 2 the "
+           "cubic (the default), 1 a stiffening that grows with |d| rather than d^2"),
+    _param("hardening_deflection", 116, 1.0, 1e-12, 1e3, "rad",
+           "Deflection at which a hardening of exponent p != 2 stiffens as the cubic of the same hardening does (no "
+           "effect at p = 2)"),
 )
 
 BY_NAME: dict[str, Variable] = {v.name: v for v in VARIABLES}

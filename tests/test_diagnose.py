@@ -719,8 +719,17 @@ def test_a_shape_rival_goes_back_to_the_librarys_shape_from_an_adopted_one(monke
     bare = Fitted((), 1.0, 1.0, np.ones(1), 1, 1, {}, ti.TwoInertiaState(theta[:4], None, None, None))
     other = plugin.with_other_shape(bare, "stribeck")
     assert other.state.fixed == {shape.param: shape.value} and bare.state.fixed == {} and other.effects == ()
-    assert plugin.with_other_shape(library, "stribeck") is None and plugin.with_other_shape(bare, "hardening") is None
+    assert plugin.with_other_shape(library, "stribeck") is None
+    assert plugin.with_other_shape(bare, "viscous_load") is None   # no other shape
     assert plugin.with_other_shape(other, "stribeck").state.fixed == {}   # back to the library's
+    # the hardening's other shape (exponent 1) holds its deflection at the log's d95, where both shapes stiffen
+    # alike, so that its size means the same; both go back together
+    scales = SimpleNamespace(d95=2e-4)
+    hard = Fitted((), 1.0, 1.0, np.ones(1), 1, 1, {}, ti.TwoInertiaState(theta[:4], None, None, scales))
+    other = plugin.with_other_shape(hard, "hardening")
+    assert other.state.fixed == {"hardening_exponent": 1.0, "hardening_deflection": 2e-4}
+    assert plugin.shape_of(other, "hardening") == ti.SHAPES["hardening"].words
+    assert plugin.with_other_shape(other, "hardening").state.fixed == {}
 
 
 def test_the_size_search_follows_the_profile_and_checks_where_it_ends() -> None:

@@ -19,13 +19,15 @@ OUTS = ("q_m", "q_l", "v_m", "v_l", "hysteresis_state", "deflection", "spring_to
         "load_friction_torque")
 
 
-@pytest.fixture(scope="module", params=[(2.0, 1.0), (1.0, 2.0), (1.5, 1.5)],
-                ids=["gaussian-dahl", "exponential-dahl-2", "delta-1.5-dahl-1.5"])
+@pytest.fixture(scope="module", params=[(2.0, 1.0, 2.0), (1.0, 2.0, 2.0), (1.5, 1.5, 2.0), (2.0, 1.0, 1.0)],
+                ids=["gaussian-dahl", "exponential-dahl-2", "delta-1.5-dahl-1.5", "hardening-exponent-1"])
 def run(request):
-    """The pulse train with every effect on, for each Stribeck decay exponent (``stribeck_shape``) and Dahl exponent
-    (``hysteresis_exponent``)."""
-    shape, exponent = request.param
-    p = DriveParams().with_values(**ALL_ON, stribeck_shape=shape, hysteresis_exponent=exponent)
+    """The pulse train with every effect on, for each Stribeck decay exponent (``stribeck_shape``), Dahl exponent
+    (``hysteresis_exponent``) and the hardening of exponent 1 beside the cubic (``hardening_exponent``, stiffening
+    as the cubic does at 5e-5 rad)."""
+    shape, exponent, hardening = request.param
+    p = DriveParams().with_values(**ALL_ON, stribeck_shape=shape, hysteresis_exponent=exponent,
+                                  hardening_exponent=hardening, hardening_deflection=5e-5)
     dt = 1e-4
     torque = np.zeros(4000)
     for k, a in enumerate((3.0, -2.5, 4.0, -1.8)):

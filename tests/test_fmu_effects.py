@@ -88,7 +88,8 @@ class Reference:
         ph, ph4 = 2 * y[0] + p.kinematic_error_phase, 4 * y[0] + p.kinematic_error_4_phase
         d = p.r * y[0] + p.kinematic_error * math.sin(ph) + p.kinematic_error_4 * math.sin(ph4) - y[1]
         g = p.r + 2 * p.kinematic_error * math.cos(ph) + 4 * p.kinematic_error_4 * math.cos(ph4)
-        return d, g, p.K_s * (d + p.hardening * d ** 3) + y[4]
+        n, dh = p.hardening_exponent, p.hardening_deflection
+        return d, g, p.K_s * (d + p.hardening * (d ** 3 if n == 2 else d * abs(d) ** n * dh ** (2 - n))) + y[4]
 
     def levels(self, body):
         p = self.p
@@ -567,15 +568,19 @@ def test_hysteresis_dahl_branches(fmi: int) -> None:
 
 # ---------------------------------------------------------------------------- 7. energy balance ------------------
 
-def test_energy_balance_with_effects(fmi: int) -> None:
-    p = NOMINAL.with_values(**CONSERVATIVE_AND_FRICTION)
+@pytest.mark.parametrize("exponent", [2.0, 1.0], ids=["cubic", "hardening-exponent-1"])
+def test_energy_balance_with_effects(fmi: int, exponent: float) -> None:
+    """Input work = friction work + kinetic + the spring's potential, K_s (d^2/2 + h d_h^(2-p) |d|^(p+2) / (p+2)) (the
+    cubic's d^4/4 at p = 2), to 1e-8 of the input work."""
+    p = NOMINAL.with_values(**CONSERVATIVE_AND_FRICTION, hardening_exponent=exponent, hardening_deflection=3e-5)
     dt = 2e-4
     u = pulse_train(p, dt, 0.16)
     with Plant(p, fmi_version=fmi, q_l_start=Q_L_EQ) as plant:
         out = traj(plant, u, dt, ("v_m", "v_l", "deflection", "input_work", "friction_work"))
     v_m, v_l, d, w_in, w_fr = out.T
     kinetic = 0.5 * p.J_m * v_m**2 + 0.5 * p.J_l * v_l**2
-    potential = p.K_s * (d**2 / 2 + p.hardening * d**4 / 4)
+    n = exponent
+    potential = p.K_s * (d**2 / 2 + p.hardening * 3e-5 ** (2 - n) * np.abs(d) ** (n + 2) / (n + 2))
     residual = w_in - w_fr - kinetic - potential
     assert np.max(np.abs(residual)) <= 1e-8 * w_in[-1], np.max(np.abs(residual)) / w_in[-1]
     assert w_fr[-1] > 0.5 * w_in[-1]
@@ -592,13 +597,16 @@ def reference_run(p: DriveParams, q_l: float, u: np.ndarray, dt: float) -> np.nd
     return np.array([ref.y.copy()] + [ref.advance(T, dt) for T in u])
 
 
-@pytest.mark.parametrize("exponent, shape", [(1.0, 2.0), (2.0, 2.0), (1.5, 2.0), (2.0, 1.0)],
-                         ids=["dahl", "dahl-2", "dahl-1.5", "exponential-dahl-2"])
-def test_all_effects_against_scipy_reference(fmi: int, exponent: float, shape: float) -> None:
+@pytest.mark.parametrize("exponent, shape, hardening", [(1.0, 2.0, 2.0), (2.0, 2.0, 2.0), (1.5, 2.0, 2.0),
+                                                         (2.0, 1.0, 2.0), (1.0, 2.0, 1.0)],
+                         ids=["dahl", "dahl-2", "dahl-1.5", "exponential-dahl-2", "hardening-exponent-1"])
+def test_all_effects_against_scipy_reference(fmi: int, exponent: float, shape: float, hardening: float) -> None:
     """Every effect on (the Dahl element at the default exponent 1 and at others, ``hysteresis_exponent``; the
-    Gaussian Stribeck decay, and the exponential with exponent 2, the shapes the diagnosis checks the library's
-    against): the trajectory and the hysteresis state against the independent DOP853 reference."""
-    p = NOMINAL.with_values(**ALL_ON, hysteresis_exponent=exponent, stribeck_shape=shape)
+    Gaussian Stribeck decay, and the exponential with exponent 2; the cubic hardening and the one of exponent 1,
+    ``hardening_exponent``: the shapes the diagnosis checks the library's against): the trajectory and the
+    hysteresis state against the independent DOP853 reference."""
+    p = NOMINAL.with_values(**ALL_ON, hysteresis_exponent=exponent, stribeck_shape=shape,
+                            hardening_exponent=hardening, hardening_deflection=3e-5)
     dt = 2e-4
     u = pulse_train(p, dt, 0.16)
     with Plant(p, fmi_version=fmi, q_l_start=Q_L_EQ) as plant:

@@ -20,7 +20,8 @@
  *
  * 2. General propagator (any optional effect on: viscous, also direction-dependent, Stribeck, asymmetric
  * friction, hardening spring, Dahl hysteresis, kinematic error). With d = r q_m + e(q_m) - q_l, the kinematic error
- * e = A sin(2 q_m + phi) + A4 sin(4 q_m + phi4), g = dd/dq_m = r + e'(q_m), tau_s = K_s (d + hardening d^3) + z:
+ * e = A sin(2 q_m + phi) + A4 sin(4 q_m + phi4), g = dd/dq_m = r + e'(q_m), tau_s = K_s (d + hardening d^3) + z
+ * (d^3: d |d|^p d_h^(2 - p) at a hardening_exponent p other than 2):
  *     J_m v_m' = T - g tau_s - F_m          J_l v_l' = tau_s - F_l
  * A slipping body feels F = dir f (1 + a dir)(1 + s exp(-|v/vs|^delta)) + b (1 + a_v dir) v (delta = 2, the
  * default, a Gaussian decay; 1 an exponential one); a stuck body stays stuck
@@ -377,6 +378,21 @@ static double shape_pow(double x, double y) {
     return y == 1.0 ? x : pow(x, y);
 }
 
+/* The hardening's shape: d^3 at the default exponent 2 (computed so, as before the exponent existed: every cubic
+ * trajectory stays the same to the last bit), else d |d|^p d_h^(2 - p), which equals the cubic at |d| = d_h. */
+static double hardening_excess(const HDModel *m, double d) {
+    if (m->hardening_exponent == 2.0) return d * d * d;
+    return d * shape_pow(fabs(d), m->hardening_exponent) * pow(m->hardening_deflection, 2.0 - m->hardening_exponent);
+}
+
+/* hardening d(hardening_excess)/dd: 3 hardening d^2 (in the order it was computed before the exponent existed),
+ * else hardening (p + 1) |d|^p d_h^(2 - p). */
+static double hardening_slope(const HDModel *m, double d) {
+    if (m->hardening_exponent == 2.0) return 3.0 * m->hardening * d * d;
+    double p = m->hardening_exponent;
+    return m->hardening * (p + 1.0) * shape_pow(fabs(d), p) * pow(m->hardening_deflection, 2.0 - p);
+}
+
 /* z on the current Dahl branch: the exact solution of z' = sigma dd u^n, u = 1 - dir z/H, with dir held, as a
  * function of the twist, exactly z0 at the anchor d0. With x = sigma dir (d - d0)/H (>= 0 along the branch) and
  * u0 = 1 - dir z0/H, du/dx = -u^n gives
@@ -440,7 +456,7 @@ static FxSpring fx_spring(const HDModel *m, double q_m, double q_l) {
         s.g = m->r + g2 + g4;
     }
     s.z = hysteresis_z(m, s.d);
-    s.tau = m->K_s * (s.d + m->hardening * s.d * s.d * s.d) + s.z;
+    s.tau = m->K_s * (s.d + m->hardening * hardening_excess(m, s.d)) + s.z;
     return s;
 }
 
@@ -1112,7 +1128,7 @@ static double fx_interior_stop(const HDModel *m, const FxStart *st, const FxEven
  * a stuck body takes no part, the other rings against the spring alone), at most HD_DECAY_FRACTION of a slipping
  * body's viscous time constant J / (b (1 + |a_v|)). */
 static double mode_substep(const HDModel *m, double d, int motor_slips, int load_slips) {
-    double K = m->K_s * (1.0 + 3.0 * m->hardening * d * d)
+    double K = m->K_s * (1.0 + hardening_slope(m, d))
              + (m->hysteresis_torque > 0.0 ? m->hysteresis_stiffness * hysteresis_slope(m) : 0.0);
     double G = m->r + 2.0 * m->kinematic_error + 4.0 * m->kinematic_error_4;
     double w2 = K * ((motor_slips ? G * G / m->J_m : 0.0) + (load_slips ? 1.0 / m->J_l : 0.0));

@@ -45,10 +45,11 @@ typedef struct {
     int32_t encoder_counts_per_rev;
     double q_m_start, q_l_start, v_m_start, v_l_start;
     /* Optional effects (0 = off, except the shape parameters stribeck_velocity, stribeck_shape, hysteresis_stiffness,
-     * hysteresis_exponent, phase). */
+     * hysteresis_exponent, hardening_exponent, hardening_deflection, phase). */
     double b_m, b_l, stribeck_ratio, stribeck_velocity, friction_asymmetry, hardening;
     double hysteresis_torque, hysteresis_stiffness, kinematic_error, kinematic_error_phase, viscous_asymmetry;
     double kinematic_error_4, kinematic_error_4_phase, stribeck_shape, hysteresis_exponent;
+    double hardening_exponent, hardening_deflection;
 
     /* Input: motor torque [N m], held constant over a communication step. */
     double motor_torque;

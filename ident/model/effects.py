@@ -9,7 +9,8 @@ Equations (SI, load-side angles; ``dir`` is a slipping body's direction, +1 / -1
     d     = r q_m + e(q_m) - q_l                              deflection incl. kinematic error
     e     = A sin(2 q_m + phi) + A4 sin(4 q_m + phi4)         twice and four times per wave-generator turn
     g     = r + e'(q_m)                                       d(d)/d(q_m): the transmission seen by the motor
-    tau_s = K_s (d + hardening d^3) + z                       spring torque (hardening = K3/K_s)
+    tau_s = K_s (d + hardening d^3) + z                       spring torque (hardening = K3/K_s; at an exponent
+                                                              p != 2, d |d|^p d_h^(2 - p) for d^3)
     z'    = sigma dd |1 - sgn(dd) z/H|^n sgn(1 - sgn(dd) z/H),  dd = g v_m - v_l   Dahl hysteresis (H = 0: off)
     J_m v_m' = T - g tau_s - F_m          J_l v_l' = tau_s - F_l
     F     = dir f (1 + a dir)(1 + s exp(-|v/v_s|^delta)) + b (1 + a_v dir) v   a slipping body's friction
@@ -61,9 +62,13 @@ def transmission(q_m: Any, r: Any, kin: tuple[Any, Any, Any, Any] = (0.0, 0.0, 0
     return r + 2 * kin[0] * ca.cos(2 * q_m + kin[1]) + 4 * kin[2] * ca.cos(4 * q_m + kin[3])
 
 
-def spring_torque(d: Any, K_s: Any, hardening: Any = 0.0, z: Any = 0.0) -> Any:
-    """tau_s = K_s (d + hardening d^3) + z [N m]."""
-    return K_s * (d + hardening * d**3) + z
+def spring_torque(d: Any, K_s: Any, hardening: Any = 0.0, z: Any = 0.0, exponent: Any = 2.0,
+                  deflection: Any = 1.0) -> Any:
+    """tau_s = K_s (d + hardening d^3) + z [N m]; at a hardening ``exponent`` p other than 2, d^3 becomes
+    d |d|^p d_h^(2 - p) (d_h = ``deflection``: where it stiffens as the cubic does)."""
+    if isinstance(exponent, (int, float)) and exponent == 2.0:
+        return K_s * (d + hardening * d**3) + z
+    return K_s * (d + hardening * d * ca.fabs(d) ** exponent * deflection ** (2 - exponent)) + z
 
 
 def hysteresis_rate(z: Any, dd: Any, sigma: Any, H: Any, exponent: Any = 1.0) -> Any:
@@ -113,7 +118,7 @@ def slip_dynamics(params: dict[str, Any]) -> ca.Function:
     kin = tuple(p[k] for k in KINEMATIC_ERROR_PARAMS)
     d = deflection(q_m, q_l, p["r"], kin)
     g = transmission(q_m, p["r"], kin)
-    tau = spring_torque(d, p["K_s"], p["hardening"], z)
+    tau = spring_torque(d, p["K_s"], p["hardening"], z, p["hardening_exponent"], p["hardening_deflection"])
     common = dict(asymmetry=p["friction_asymmetry"], stribeck_ratio=p["stribeck_ratio"],
                   viscous_asymmetry=p["viscous_asymmetry"], stribeck_shape=p["stribeck_shape"])
     F_m = sliding_friction(v_m, p["f_m"], b=p["b_m"], stribeck_velocity=p["stribeck_velocity"] / p["r"], **common)
@@ -146,7 +151,7 @@ EFFECT_DEFAULTS: dict[str, float] = {
     "b_m": 0.0, "b_l": 0.0, "stribeck_ratio": 0.0, "stribeck_velocity": 1e-3, "friction_asymmetry": 0.0,
     "hardening": 0.0, "hysteresis_torque": 0.0, "hysteresis_stiffness": 1.0e4, "kinematic_error": 0.0,
     "kinematic_error_phase": 0.0, "viscous_asymmetry": 0.0, "kinematic_error_4": 0.0, "kinematic_error_4_phase": 0.0,
-    "stribeck_shape": 2.0, "hysteresis_exponent": 1.0,
+    "stribeck_shape": 2.0, "hysteresis_exponent": 1.0, "hardening_exponent": 2.0, "hardening_deflection": 1.0,
 }
 #: the kinematic error's FMU parameters, in the order of ``kin`` above: (A, phi, A4, phi4)
 KINEMATIC_ERROR_PARAMS = ("kinematic_error", "kinematic_error_phase", "kinematic_error_4", "kinematic_error_4_phase")

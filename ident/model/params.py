@@ -69,6 +69,8 @@ class DriveParams:
     kinematic_error_4_phase: float = V.BY_NAME["kinematic_error_4_phase"].start  # rad
     stribeck_shape: float = V.BY_NAME["stribeck_shape"].start  # exponent delta of the decay: 2 Gaussian, 1 exponential
     hysteresis_exponent: float = V.BY_NAME["hysteresis_exponent"].start  # Dahl exponent n (1: the classic element)
+    hardening_exponent: float = V.BY_NAME["hardening_exponent"].start  # p: K_s (d + h d |d|^p d_h^(2-p)); 2: cubic
+    hardening_deflection: float = V.BY_NAME["hardening_deflection"].start  # rad, d_h (no effect at p = 2)
 
     def __post_init__(self) -> None:
         for name in FIELD_NAMES:

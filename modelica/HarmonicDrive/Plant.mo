@@ -29,6 +29,8 @@ model Plant "Harmonic-drive plant: two inertias, gear ratio r = q_l/q_m, flexspl
   parameter Real kinematic_error_4_phase(unit = "rad", min = -10.0, max = 10.0) = 0.0 "Phase phi4 of the second harmonic";
   parameter Real stribeck_shape(unit = "1", min = 1.0, max = 4.0) = 2.0 "Exponent delta of the Stribeck decay exp(-|v/vs|^delta): 2 Gaussian, 1 exponential";
   parameter Real hysteresis_exponent(unit = "1", min = 1.0, max = 4.0) = 1.0 "Exponent n of the Dahl element: z' = sigma dd |1 - sgn(dd) z/H|^n sgn(1 - sgn(dd) z/H)";
+  parameter Real hardening_exponent(unit = "1", min = 1.0, max = 4.0) = 2.0 "Exponent p of the hardening: spring torque K_s (d + hardening d |d|^p hardening_deflection^(2 - p)); 2 the cubic";
+  parameter Real hardening_deflection(unit = "rad", min = 1e-12, max = 1e3) = 1.0 "Deflection at which a hardening of exponent p != 2 stiffens as the cubic does";
 
   // Initial state
   parameter Real q_m_start(unit = "rad", min = -1e6, max = 1e6) = 0.0 "Initial motor angle";
@@ -89,7 +91,7 @@ equation
   down_l = f_l*(1 - friction_asymmetry)*(1 + stribeck_ratio);
   deflection = r*q_m + kinematic_error*sin(2*q_m + kinematic_error_phase) + kinematic_error_4*sin(4*q_m + kinematic_error_4_phase) - q_l;
   g = r + 2*kinematic_error*cos(2*q_m + kinematic_error_phase) + 4*kinematic_error_4*cos(4*q_m + kinematic_error_4_phase);
-  spring_torque = K_s*(deflection + hardening*deflection^3) + hysteresis_state;
+  spring_torque = K_s*(deflection + hardening*deflection*abs(deflection)^hardening_exponent*hardening_deflection^(2 - hardening_exponent)) + hysteresis_state;
   tau_m = motor_torque - g*spring_torque;
   tau_l = spring_torque;
 
@@ -156,7 +158,8 @@ The same parameters as the FMU (value references 100+): viscous friction <code>b
 direction-dependent as b (1 &plusmn; <code>viscous_asymmetry</code>);
 Stribeck friction (<code>stribeck_ratio</code> s, <code>stribeck_velocity</code> vs, load side, vs/r on the
 motor; the decay exp(-|v/vs|^delta), <code>stribeck_shape</code> delta: 2 Gaussian, 1 exponential); asymmetric levels f (1 &plusmn; <code>friction_asymmetry</code>); a hardening spring
-K_s (d + <code>hardening</code> d^3); a Dahl hysteresis element z' = sigma dd |1 - sgn(dd) z/H|^n sgn(1 - sgn(dd) z/H) in parallel
+K_s (d + <code>hardening</code> d^3) (at <code>hardening_exponent</code> p other than 2, d |d|^p d_h^(2 - p), d_h =
+<code>hardening_deflection</code>); a Dahl hysteresis element z' = sigma dd |1 - sgn(dd) z/H|^n sgn(1 - sgn(dd) z/H) in parallel
 with the spring (<code>hysteresis_torque</code> H, <code>hysteresis_stiffness</code> sigma, <code>hysteresis_exponent</code> n,
 1 by default); a kinematic error
 d = r q_m + A sin(2 q_m + phi) + A4 sin(4 q_m + phi4) - q_l (<code>kinematic_error</code>, <code>kinematic_error_phase</code>,
