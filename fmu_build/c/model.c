@@ -385,8 +385,8 @@ static double hardening_excess(const HDModel *m, double d) {
     return d * shape_pow(fabs(d), m->hardening_exponent) * pow(m->hardening_deflection, 2.0 - m->hardening_exponent);
 }
 
-/* hardening d(hardening_excess)/dd: 3 hardening d^2 (in the order it was computed before the exponent existed),
- * else hardening (p + 1) |d|^p d_h^(2 - p). */
+/* The hardening's share of the tangent stiffness over K_s, hardening x d(hardening_excess)/dd: 3 hardening d^2 (in
+ * the order it was computed before the exponent existed), else hardening (p + 1) |d|^p d_h^(2 - p). */
 static double hardening_slope(const HDModel *m, double d) {
     if (m->hardening_exponent == 2.0) return 3.0 * m->hardening * d * d;
     double p = m->hardening_exponent;
