@@ -106,7 +106,7 @@ def test_too_little_travel_is_skipped_not_guessed() -> None:
 
 #: one log per excitation the identifier accepts, each of its own random drive (seeds in no other suite), 1.5 s
 TORQUE_LOGS = [(4481 + i, kind) for i, kind in enumerate(IDENTIFICATION_KINDS)]
-#: the mistakes the torque check is for: (what is done to the log, the words of the error)
+#: the mistakes the torque check is for: (the factor on the torque column, the factor on f_m_Nm, the error's words)
 TORQUE_MISTAKES = {"the torque's sign flipped": (-1.0, 1.0, "looks flipped"),
                    "the torque in mN.m": (1e3, 1.0, "reads too large"),
                    "the torque in kN.m": (1e-3, 1.0, "reads too small by about"),
