@@ -580,7 +580,7 @@ def test_energy_balance_with_effects(fmi: int, exponent: float) -> None:
     v_m, v_l, d, w_in, w_fr = out.T
     kinetic = 0.5 * p.J_m * v_m**2 + 0.5 * p.J_l * v_l**2
     n = exponent
-    potential = p.K_s * (d**2 / 2 + p.hardening * 3e-5 ** (2 - n) * np.abs(d) ** (n + 2) / (n + 2))
+    potential = p.K_s * (d**2 / 2 + p.hardening * p.hardening_deflection ** (2 - n) * np.abs(d) ** (n + 2) / (n + 2))
     residual = w_in - w_fr - kinetic - potential
     assert np.max(np.abs(residual)) <= 1e-8 * w_in[-1], np.max(np.abs(residual)) / w_in[-1]
     assert w_fr[-1] > 0.5 * w_in[-1]

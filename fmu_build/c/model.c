@@ -382,7 +382,8 @@ static double shape_pow(double x, double y) {
  * trajectory stays the same to the last bit), else d |d|^p d_h^(2 - p), which equals the cubic at |d| = d_h. */
 static double hardening_excess(const HDModel *m, double d) {
     if (m->hardening_exponent == 2.0) return d * d * d;
-    return d * shape_pow(fabs(d), m->hardening_exponent) * pow(m->hardening_deflection, 2.0 - m->hardening_exponent);
+    double p = m->hardening_exponent;
+    return d * shape_pow(fabs(d), p) * shape_pow(m->hardening_deflection, 2.0 - p);
 }
 
 /* The hardening's share of the tangent stiffness over K_s, hardening x d(hardening_excess)/dd: 3 hardening d^2 (in
@@ -390,7 +391,7 @@ static double hardening_excess(const HDModel *m, double d) {
 static double hardening_slope(const HDModel *m, double d) {
     if (m->hardening_exponent == 2.0) return 3.0 * m->hardening * d * d;
     double p = m->hardening_exponent;
-    return m->hardening * (p + 1.0) * shape_pow(fabs(d), p) * pow(m->hardening_deflection, 2.0 - p);
+    return m->hardening * (p + 1.0) * shape_pow(fabs(d), p) * shape_pow(m->hardening_deflection, 2.0 - p);
 }
 
 /* z on the current Dahl branch: the exact solution of z' = sigma dd u^n, u = 1 - dir z/H, with dir held, as a
