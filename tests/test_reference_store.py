@@ -76,3 +76,16 @@ def test_stored_references_equal_fresh_ones(cache, monkeypatch) -> None:
             assert np.array_equal(getattr(g, name), column), name
         assert g.truth.to_dict() == fresh.truth.to_dict()
     assert incs[0] == incs[1] == fresh_incs
+
+
+@pytest.mark.parametrize("env", [{"HDRIVE_CACHE": "/x/h"}, {"XDG_CACHE_HOME": "/x/xdg"}, {"HOME": "/x/home"}])
+def test_the_store_sits_where_the_fmu_builds_do(monkeypatch, env) -> None:
+    """``stored.cache_root`` repeats ``fmu_build.cache.cache_dir``'s rule (the references may import nothing of the
+    product); the two give the same folder under each of the rule's three cases."""
+    from fmu_build.cache import cache_dir
+
+    for name in ("HDRIVE_CACHE", "XDG_CACHE_HOME"):
+        monkeypatch.delenv(name, raising=False)
+    for name, value in env.items():
+        monkeypatch.setenv(name, value)
+    assert store_module.cache_root() == cache_dir()

@@ -42,7 +42,9 @@ REPO = REFERENCE_DIR.parents[1]
 
 
 def cache_root() -> Path:
-    """``$HDRIVE_CACHE``, else ``$XDG_CACHE_HOME/hdrive``, else ``~/.cache/hdrive`` (as the FMU builds')."""
+    """``$HDRIVE_CACHE``, else ``$XDG_CACHE_HOME/hdrive``, else ``~/.cache/hdrive``: the FMU builds' rule
+    (``fmu_build.cache.cache_dir``), written again because the references import nothing of the product
+    (``test_generator_imports_nothing_of_the_product``); ``test_reference_store.py`` holds the two equal."""
     root = os.environ.get("HDRIVE_CACHE") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "hdrive")
     return Path(root)
