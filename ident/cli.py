@@ -642,8 +642,9 @@ class Terminated(BaseException):
 
 
 #: the stopping signals received (``_on_signal``): a C library that runs Python code can swallow the exception the
-#: handler raises and report a failure of its own instead (seen once in CI: fmpy's XML schema check, signalled while
-#: it read the FMU, said "Document is not valid XML Schema"); ``run`` then still exits as stopped by the last one
+#: handler raises and report a failure of its own instead; ``run`` then still exits as stopped by the last one. (The
+#: CI failure first blamed on this, "Document is not valid XML Schema" in an interrupted sweep, was a libxml2 race
+#: at a sweep's start, before any signal: ``ident.model.plant`` serializes those reads now.)
 _SIGNALS: list[int] = []
 
 

@@ -197,10 +197,9 @@ def test_workers_at_work_are_not_taken_for_lost(monkeypatch) -> None:
 def test_a_signal_that_a_c_library_turned_into_its_own_error_still_exits_as_stopped(monkeypatch, capsys, sig, code,
                                                                                      line) -> None:
     """``cli.run``: the signal handler's exception (SIGTERM's ``Terminated``, Ctrl-C's KeyboardInterrupt), swallowed
-    by C code that reports a failure of its own instead (seen once in CI: fmpy's XML schema check, signalled while it
-    read the FMU, said "Document is not valid XML Schema", and the sweep exited 2 with that error), still ends the
-    command as stopped by that signal, with its code and one line. A failure with no signal behind it stays a named
-    error (2)."""
+    by C code that reports a failure of its own instead (here a made-up one, worded as fmpy's schema check words its
+    failures), still ends the command as stopped by that signal, with its code and one line. A failure with no
+    signal behind it stays a named error (2)."""
     import argparse
 
     from ident import cli

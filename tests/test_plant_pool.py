@@ -69,6 +69,47 @@ def test_two_users_never_share_a_plant() -> None:
     e.close()
 
 
+def test_threads_opening_plants_at_once_read_the_model_description_one_at_a_time(monkeypatch) -> None:
+    """libxml2 sets up its XML-schema types on a process's first schema parse without a lock, so two threads that
+    opened their first plants at once (a sweep's lanes) could fail fmpy's schema check ("Document is not valid XML
+    Schema", twice in CI). The reads are serialized: the reader below, slowed so that unserialized reads would
+    overlap, never sees a second one in flight."""
+    import threading
+    import time
+
+    import fmpy
+
+    real, inside, most = fmpy.read_model_description, [0], [0]
+    guard = threading.Lock()
+
+    def slow_read(*args, **kwargs):
+        with guard:
+            inside[0] += 1
+            most[0] = max(most[0], inside[0])
+        time.sleep(0.05)
+        try:
+            return real(*args, **kwargs)
+        finally:
+            with guard:
+                inside[0] -= 1
+
+    monkeypatch.setattr(fmpy, "read_model_description", slow_read)
+    start, plants = threading.Barrier(4), []
+
+    def open_one() -> None:
+        start.wait()
+        plants.append(Plant(DriveParams()))
+
+    threads = [threading.Thread(target=open_one) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for p in plants:
+        p.close()
+    assert len(plants) == 4 and most[0] == 1
+
+
 def test_a_block_that_raised_closes_its_plant() -> None:
     with pytest.raises(KeyError):
         with pool.pooled_plant(DriveParams()) as plant:

@@ -10,6 +10,7 @@ import atexit
 import ctypes
 import shutil
 import tempfile
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, NamedTuple, NoReturn, Sequence
@@ -25,6 +26,11 @@ from .params import FIELD_NAMES, DriveParams, ParameterError, check_parameter
 
 _RUNNER: ctypes.CDLL | None = None
 _UNPACKED: set[str] = set()   # folders of unpacked FMUs still in use: removed at exit even if a plant was not closed
+#: one modelDescription read at a time in a process: fmpy checks it against the FMI XML schema, and libxml2 sets up its
+#: schema types lazily, on a process's first schema parse, without a lock (KWARC/rust-libxml#159 guards the same
+#: call). Two threads opening their first plants at once (the lanes of a sweep) could then fail the parse: seen twice
+#: in CI as "Document is not valid XML Schema", a sweep that exited 2 at its start. The read takes about 4 ms.
+_READING = threading.Lock()
 
 
 @atexit.register
@@ -127,7 +133,8 @@ class Plant:
         self.fmu_path = path
         self._fmu = None
         try:  # a damaged FMU file: a named error, not a traceback from deep inside zipfile or ctypes
-            self.model_description = read_model_description(str(path))
+            with _READING:
+                self.model_description = read_model_description(str(path))
             self.fmi_version = int(self.model_description.fmiVersion[0])
         except Exception as exc:
             raise PlantError(f"cannot read the FMU {path}: {exc}") from None
