@@ -92,6 +92,24 @@ def load(case: Case, duration_s: float | None = None, rate_hz: float | None = No
     return read_log(csv), json.loads(truth.read_text())
 
 
+#: the default test run's logs: 3 s at 5 kHz (the matrix's own are 10-11 s)
+SHORT: dict[str, float] = dict(duration_s=3.0, rate_hz=5000.0)
+_DIAGNOSED: dict = {}
+
+
+def diagnosed(case: Case, **options: Any) -> tuple[Any, dict[str, Any]]:
+    """(``ident.diagnose`` of ``case``'s ``SHORT`` log with ``options``, the generator's truth), made once per test
+    process: several default tests read the same diagnosis (``--dist loadfile`` keeps a file's tests in one
+    process)."""
+    from ident.diagnosis.engine import diagnose
+
+    key = (case, tuple(sorted(options.items())))
+    if key not in _DIAGNOSED:
+        log, truth = load(case, **SHORT)
+        _DIAGNOSED[key] = (diagnose(log, resolution_pulses=0, export_fmu=False, **options), truth)
+    return _DIAGNOSED[key]
+
+
 # ------------------------------------------------------------------------------------------ scoring -------------
 
 def library_truth(effect: str, truth: dict[str, Any], params: dict[str, float] | None = None) -> float | None:
