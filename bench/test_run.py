@@ -1,6 +1,7 @@
 """The default test run's wall time with the machine loaded: the README's test command (``python3 -m pytest``,
-two xdist processes) with ``--load`` CPU-bound processes beside it (each a busy Python loop), the way a developer's
-machine runs it beside a build or a benchmark. The target is 10 minutes on 2 cores, even loaded.
+with the xdist processes ``pyproject.toml`` sets: three since stop 69) with ``--load`` CPU-bound processes beside
+it (each a busy Python loop), the way a developer's machine runs it beside a build or a benchmark. The target is
+10 minutes on 2 cores, even loaded.
 
 The independent references' results (the log generator's, the event-driven integrator's) are kept between runs
 (``tests/reference/stored.py``); ``--cold`` runs with that store off, as a fresh machine runs it.
