@@ -1,5 +1,5 @@
 """The default test run's wall time with the machine loaded: the README's test command (``python3 -m pytest``,
-with the xdist processes ``pyproject.toml`` sets: three since stop 69) with ``--load`` CPU-bound processes beside
+with the xdist processes ``pyproject.toml`` sets: four since stop 69) with ``--load`` CPU-bound processes beside
 it (each a busy Python loop), the way a developer's machine runs it beside a build or a benchmark. The target is
 10 minutes on 2 cores, even loaded.
 
