@@ -39,6 +39,7 @@ def loaded_run(load: int, cold: bool = False) -> dict:
             h.wait()
     lines = proc.stdout.strip().splitlines()
     return {"load_processes": load, "references": "made (store off)" if cold else "stored",
+            "pytest_addopts": os.environ.get("PYTEST_ADDOPTS", ""),   # beside pyproject.toml's (e.g. "-n 3")
             "wall_s": round(wall, 1), "exit": proc.returncode,
             "summary": lines[-1] if lines else proc.stderr[-300:],
             "load_average_1_5_15": [round(x, 2) for x in load_avg],
