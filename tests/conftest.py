@@ -21,8 +21,9 @@ def pytest_configure(config: pytest.Config) -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
-#: the test files that take longest, longest first (test time in the default run on the 2-core machine of
-#: bench/README.md, stop 69; the first two also make the most independent references on a fresh machine)
+#: the test files that take longest, longest first (their test time in the default run on the 2-core machine of
+#: bench/README.md, stop 69; test_resolution.py and test_fmu_vs_generator.py make the most independent references on
+#: a fresh machine, bench/README.md stop 66)
 HEAVIEST_FIRST = ("test_identify_reference.py", "test_diagnose.py", "test_diagnose_shapes.py", "test_identify.py",
                   "test_resolution.py", "test_fmu_vs_generator.py", "test_diagnose_rigid.py", "test_faults.py",
                   "test_reference_logs.py", "test_memo.py")
@@ -32,9 +33,14 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     """The heaviest files first (``HEAVIEST_FIRST``), the others after them in their own order: pytest-xdist hands a
     file's tests to one process (``--dist loadfile``) in this order (``--no-loadscope-reorder``; its own order is by
     the count of tests, which put the longest file last). Longest first, no process is left with a long file while
-    the others are done (the run's tail)."""
+    the others are done (the run's tail). A name that is no longer a file here is an error, not a silent no-op."""
+    here = Path(__file__).resolve().parent
+    gone = [name for name in HEAVIEST_FIRST if not (here / name).is_file()]
+    if gone:
+        raise pytest.UsageError(f"tests/conftest.py HEAVIEST_FIRST names files that do not exist: {gone}")
     rank = {name: i for i, name in enumerate(HEAVIEST_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))   # stable: the rest keep their order
+
 
 @pytest.fixture(scope="session")
 def fmu2() -> Path:
