@@ -3,6 +3,8 @@ reference makes, it is read rather than made again, any other argument is anothe
 again, an unwritable folder is no error, and ``HDRIVE_REFERENCE_CACHE=0`` bypasses the store."""
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -89,3 +91,26 @@ def test_the_store_sits_where_the_fmu_builds_do(monkeypatch, env) -> None:
     for name, value in env.items():
         monkeypatch.setenv(name, value)
     assert store_module.cache_root() == cache_dir()
+
+
+def test_the_store_stays_below_its_bound_and_drops_the_entries_used_least_recently(cache, monkeypatch) -> None:
+    """Five equal entries against a bound of four: the new entry drops the two used least recently (their
+    modification times set apart here, a read renewing the first's), and the store keeps three quarters of it."""
+    names = []
+    for i in range(4):
+        before = set(cache.glob("*.pkl")) if cache.exists() else set()
+        _counted(float(i), np.ones(1000))
+        (new,) = set(cache.glob("*.pkl")) - before
+        names.append(new)
+    for i, path in enumerate(names):
+        os.utime(path, (1_000_000 + i, 1_000_000 + i))
+    _counted(0.0, np.ones(1000))                  # read: the first entry is now the one used last
+    assert len(CALLS) == 4
+    size = names[0].stat().st_size
+    monkeypatch.setattr(store_module, "STORE_BYTES", 4 * size + 100)
+    _counted(4.0, np.ones(1000))                  # a fifth entry: over the bound
+    left = set(cache.glob("*.pkl"))
+    assert names[0] in left and names[3] in left and names[1] not in left and names[2] not in left
+    assert len(left) == 3
+    _counted(1.0, np.ones(1000))                  # a dropped entry is made again
+    assert CALLS[-1] == (1.0, "a") and len(CALLS) == 6

@@ -16,7 +16,12 @@ Any change of those makes a new entry, so a stored result is never one the code 
 machine pays the references in full; a warm one reads them. An entry that cannot be read (damaged, or made by another
 pickle) is made again; a cache folder that cannot be written is no error (the result is just not kept).
 ``HDRIVE_REFERENCE_CACHE=0`` turns the store off: a cold measurement, or a check that the references still run.
-Entries are never pruned (a 10 s log at 5 kHz is about 2.4 MB); the folder can be deleted at any time.
+
+The store stays below ``STORE_BYTES``: every change of the references' code makes a new set of entries and leaves the
+old set unread, so an unbounded store only grew (634 MB on a developer's machine after some weeks; the default run's
+own references are about 70 MB, a 10 s log at 5 kHz about 2.4 MB). A read renews an entry's modification time; a new
+entry that takes the store over its bound drops the entries used least recently until it holds three quarters of it.
+What is kept decides only how fast a reference comes back, never what it is. The folder can be deleted at any time.
 """
 from __future__ import annotations
 
@@ -39,6 +44,8 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 REFERENCE_DIR = Path(__file__).resolve().parent
 REPO = REFERENCE_DIR.parents[1]
+#: the store's bound: room for the default run's references (about 70 MB), the benchmarks' and a few older sets
+STORE_BYTES = 1024 * 2 ** 20
 
 
 def cache_root() -> Path:
@@ -52,11 +59,14 @@ def cache_root() -> Path:
 
 @functools.lru_cache(maxsize=None)
 def reference_version(extra_file: str = "") -> str:
-    """A hash of the source of every file of ``tests/reference`` (and of ``extra_file``, if given) and of the
-    Python, NumPy and SciPy versions: what a reference's result depends on besides its arguments. Files are named
-    relative to the repository, so every clone of the same code shares the entries."""
+    """A hash of the source of every file of ``tests/reference`` but this one (and of ``extra_file``, if given) and
+    of the Python, NumPy and SciPy versions: what a reference's result depends on besides its arguments. This file
+    only keeps results (a change to how it keeps them makes none of them another), so it is left out. Files are
+    named relative to the repository, so every clone of the same code shares the entries."""
     h = hashlib.sha256()
-    for path in sorted(REFERENCE_DIR.rglob("*.py")) + ([Path(extra_file)] if extra_file else []):
+    own = Path(__file__).resolve()
+    sources = [p for p in sorted(REFERENCE_DIR.rglob("*.py")) if p.resolve() != own]
+    for path in sources + ([Path(extra_file)] if extra_file else []):
         where = path.resolve()
         h.update((where.relative_to(REPO).as_posix() if where.is_relative_to(REPO) else where.name).encode())
         h.update(path.read_bytes())
@@ -82,9 +92,12 @@ def stored(fn: F) -> F:
                              + pickle.dumps((args, sorted(kwargs.items())), protocol=4)).hexdigest()
         path = cache_root() / "reference-results" / f"{fn.__qualname__}-{key[:32]}.pkl"
         try:
-            return pickle.loads(path.read_bytes())
+            result = pickle.loads(path.read_bytes())
         except Exception:  # absent, damaged, or made by another pickle: make it again
             pass
+        else:
+            _renew(path)
+            return result
         result = fn(*args, **kwargs)
         _write(path, result)
         return result
@@ -110,5 +123,37 @@ def _write(path: Path, result: Any) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         atomic_write(path, lambda f: pickle.dump(result, f, protocol=4))
+        prune(path.parent, STORE_BYTES)
     except OSError as err:
         print(f"tests.reference.stored: not kept ({path}: {err})", file=sys.stderr)
+
+
+def _renew(path: Path) -> None:
+    """Mark an entry as used now (``prune`` drops the entries used least recently); a store that cannot be written
+    is no error."""
+    try:
+        os.utime(path)
+    except OSError:
+        pass
+
+
+def prune(folder: Path, limit: int) -> None:
+    """If the entries in ``folder`` hold more than ``limit`` bytes, drop those used least recently (oldest
+    modification time first) until they hold three quarters of it. Test processes that prune at once only drop an
+    entry twice (no error); one that reads an entry as it goes makes it again."""
+    entries = []
+    for entry in os.scandir(folder):
+        if entry.name.endswith(".pkl"):
+            try:
+                st = entry.stat()
+            except OSError:  # dropped by another process meanwhile
+                continue
+            entries.append((st.st_mtime_ns, st.st_size, entry.path))
+    total = sum(size for _, size, _ in entries)
+    if total <= limit:
+        return
+    for _, size, name in sorted(entries):
+        if total <= 3 * limit // 4:
+            break
+        Path(name).unlink(missing_ok=True)
+        total -= size
