@@ -1,6 +1,7 @@
 """The store of the independent references' results (``tests/reference/stored.py``): a stored result is the one the
 reference makes, it is read rather than made again, any other argument is another entry, a damaged entry is made
-again, an unwritable folder is no error, and ``HDRIVE_REFERENCE_CACHE=0`` bypasses the store."""
+again, an unwritable folder is no error, ``HDRIVE_REFERENCE_CACHE=0`` bypasses the store, and the store stays below its
+bound by dropping the entries used least recently."""
 from __future__ import annotations
 
 import os
