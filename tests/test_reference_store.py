@@ -108,8 +108,13 @@ def test_the_store_stays_below_its_bound_and_drops_the_entries_used_least_recent
     _counted(0.0, np.ones(1000))                  # read: the first entry is now the one used last
     assert len(CALLS) == 4
     size = names[0].stat().st_size
+    writing = cache / f".tmp123.tmp-{names[1].name}"   # another process's entry being written: not the store's yet
+    writing.write_bytes(names[1].read_bytes())
+    os.utime(writing, (1, 1))
     monkeypatch.setattr(store_module, "STORE_BYTES", 4 * size + 100)
     _counted(4.0, np.ones(1000))                  # a fifth entry: over the bound
+    assert writing.is_file()                      # the oldest file, yet left to its writer
+    writing.unlink()
     left = set(cache.glob("*.pkl"))
     assert names[0] in left and names[3] in left and names[1] not in left and names[2] not in left
     assert len(left) == 3

@@ -144,10 +144,11 @@ def _renew(path: Path) -> None:
 def prune(folder: Path, limit: int) -> None:
     """If the entries in ``folder`` hold more than ``limit`` bytes, drop those used least recently (oldest
     modification time first) until they hold three quarters of it. Test processes that prune at once only drop an
-    entry twice (no error); one that reads an entry as it goes makes it again."""
+    entry twice (no error); one that reads an entry as it goes makes it again. A file being written (``atomic_write``'s
+    temporary, a dot file that also ends in ``.pkl``) belongs to its writer and is left alone."""
     entries = []
     for entry in os.scandir(folder):
-        if entry.name.endswith(".pkl"):
+        if entry.name.endswith(".pkl") and not entry.name.startswith("."):
             try:
                 st = entry.stat()
             except OSError:  # dropped by another process meanwhile
