@@ -730,14 +730,14 @@ def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -
         return m
 
     class Profile:
-        def probe_size(self, model, name, factor, budget, reference=None):
+        def probe_size(self, model, name, factor, budget, reference=None, precise=False):
             return fitted(model.state.size * factor, model.state.floor, model.state.n)
 
         def size_inflation(self, model, name):
             return 1.0   # the residual is white noise
 
     class NoProbes(Profile):
-        def probe_size(self, model, name, factor, budget, reference=None):
+        def probe_size(self, model, name, factor, budget, reference=None, precise=False):
             return None
 
     moved = search_candidate(Profile(), CandidateFit("viscous_motor", fitted(1.0)), None, 1.01)
@@ -763,7 +763,7 @@ def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -
     class Falling(Profile):
         references: list = []
 
-        def probe_size(self, model, name, factor, budget, reference=None):
+        def probe_size(self, model, name, factor, budget, reference=None, precise=False):
             self.references.append(reference)
             m = fitted(model.state.size * factor)
             m.train_cost = 1000.0 + 1e4 / m.state.size
@@ -779,7 +779,7 @@ def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -
     # variance here 2): chance, not a better fit; the search neither moves nor leaves its rival unsettled (measured:
     # a hysteresis rival crept 8 rounds for 0.08 noise variances and made the right name tentative)
     class Creeping(Profile):
-        def probe_size(self, model, name, factor, budget, reference=None):
+        def probe_size(self, model, name, factor, budget, reference=None, precise=False):
             m = fitted(model.state.size * factor)
             m.train_cost = 1000.0 - 0.1 * math.log(m.state.size)
             return m
@@ -890,6 +890,10 @@ class _OverInMetrics:
 
         return CONFIDENT_OVER_NOISE, CONFIDENT_OVER_NOISE
 
+    @staticmethod
+    def polish(model: Fitted, budget: float | None) -> tuple[Fitted, str]:
+        return model, ""   # the final model as the loop left it (``ModelPlugin.polish``'s default)
+
 
 class _Pool:
     """A stand-in worker pool for the loop's tests: the plug-in as it is, and ``results`` for every batch (None:
@@ -916,6 +920,10 @@ class _Recorded:
     @staticmethod
     def resimulated(m: Fitted) -> Fitted:
         return m
+
+    @staticmethod
+    def polish(model: Fitted, budget: float | None) -> tuple[Fitted, str]:
+        return model, ""   # the final model as the loop left it (``ModelPlugin.polish``'s default)
 
     @staticmethod
     def step(m: Fitted, added: str | None, score: float | None, extra: dict) -> object:
@@ -1329,7 +1337,7 @@ def test_the_size_search_counts_chance_with_the_residuals_correlation() -> None:
             m.state = SimpleNamespace(size=size, sim=None)
             return m
 
-        def probe_size(self, model, name, factor, budget, reference=None):
+        def probe_size(self, model, name, factor, budget, reference=None, precise=False):
             return self.fitted(model.state.size * factor)
 
         def size_inflation(self, model, name):

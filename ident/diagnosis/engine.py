@@ -364,8 +364,9 @@ class _Search:
                           "level": DM_LEVEL}
 
     def _settle(self, model: Fitted) -> Fitted:
-        """The size search of every named effect (``sizes``), in the order named; when a later effect's search
-        moved the model, the earlier ones are searched (checked) again from where it ended.
+        """The final model polished (``_polished``), then the size search of every named effect (``sizes``), in
+        the order named; when a later effect's search moved the model, the earlier ones are searched (checked) again
+        from where it ended.
 
         Not on a model that leaves the sensor noise above its level (``plugin.confident_levels``) on the training
         part, the part the search fits: it does not reproduce even the data it was fitted to (a shape the library
@@ -388,9 +389,11 @@ class _Search:
                               f"training part (above its level {levels[0]:.4g}x) and every name is tentative; the "
                               "intervals are the fit's own")
             return model
+        start = model
+        model = self._polished(model)
         self.say(f"searching the sizes of {', '.join(e.name for e in self.named)} ({SIZE_PROBE:.0%} either side "
                  "first) ...")
-        start, last_move, stalls = model, 0, {}
+        last_move, stalls = 0, {}
         for i, e in enumerate(self.named):
             model, moved = self._settle_one(model, e.name, stalls)
             last_move = i if moved else last_move
@@ -398,8 +401,19 @@ class _Search:
             model, _ = self._settle_one(model, e.name, stalls)
         self._doubt_later_names(stalls)
         if model is not start:
-            self.steps[-1] = self._refreshed(model, self.steps[-1], "the size search (below) moved the final model")
+            self.steps[-1] = self._refreshed(model, self.steps[-1], "the polish and the size search (below) moved "
+                                             "the final model")
         return model
+
+    def _polished(self, model: Fitted) -> Fitted:
+        """The final model polished before its sizes are searched (``plugin.polish``): the search's probes and its
+        intervals are then measured from an optimum the loop's refits may have stalled short of. The polish is said
+        in the notes; it casts no doubt on a name (unlike a size search that moves: it refines the optimum of the
+        model the loop chose, with every unknown free, and changes no comparison between candidates)."""
+        polished, said = self.plugin.polish(model, self.budget)
+        if said:
+            self.notes.append(f"polish: the final model {said}")
+        return polished
 
     def _settle_one(self, model: Fitted, name: str, stalls: dict[str, float]) -> tuple[Fitted, bool]:
         """One size search of ``_settle``: the model it reached and whether it moved; a stall (a move that is not a
@@ -428,7 +442,8 @@ class _Search:
             return self._map(fn, tasks, f"size search ({name})")
 
         found = search_size(run, self.shared, model, name, self.budget,
-                            inflation=lambda m: self.plugin.size_inflation(m, name), separable=SEPARABLE)
+                            inflation=lambda m: self.plugin.size_inflation(m, name), separable=SEPARABLE,
+                            precise=True)
         self.size_checks[name] = found.checks
         if found.doubt:
             self.notes.append(f"size search: {name} {found.doubt}")

@@ -62,10 +62,11 @@ Mapper = Callable[[Callable[[tuple], Any], list[tuple]], list[Any]]
 
 
 def probe_task(args: tuple) -> Fitted | None:
-    """One probe (``plugin.probe_size``), a top-level function for the workers; a probe that fails is left out."""
-    plugin, model, name, factor, budget, reference = args
+    """One probe (``plugin.probe_size``, ``precise`` where asked), a top-level function for the workers; a probe
+    that fails is left out."""
+    plugin, model, name, factor, budget, reference, precise = args
     try:
-        out = plugin.probe_size(model, name, factor, budget, reference)
+        out = plugin.probe_size(model, name, factor, budget, reference, precise)
     except Exception:  # noqa: BLE001 - a check, not a result: its failure must not lose the diagnosis
         return None
     if out is not None:
@@ -88,7 +89,7 @@ class SizeSearch:
 
 def search_size(run: Mapper, plugin: ModelPlugin, model: Fitted, name: str, budget: float | None,
                 min_gain: float = 1.0, inflation: Callable[[Fitted], float] | None = None,
-                separable: float = 0.0) -> SizeSearch:
+                separable: float = 0.0, precise: bool = False) -> SizeSearch:
     """The size search of effect ``name`` from ``model`` (module docstring). ``run(fn, tasks)`` maps ``probe_task``
     over the workers; ``plugin`` is what the tasks carry to them; ``budget`` is a candidate's, each probe may use
     ``PROBE_BUDGETS`` of it, counted at the cost of simulating ``model`` (a probe far out along a size that makes
@@ -97,17 +98,18 @@ def search_size(run: Mapper, plugin: ModelPlugin, model: Fitted, name: str, budg
     unchecked. ``inflation(model)``: the size's ``ModelPlugin.size_inflation`` there (None: 1). A check whose two
     probes both fit worse, but unequally, is followed by one probe at the vertex of the parabola through them
     (``vertex``); a move there that lowered the training cost by less than ``separable`` noise variances is a
-    refinement, not a doubt."""
+    refinement, not a doubt. ``precise``: the probes' refits as ``ModelPlugin.probe_size`` says (the final model's
+    search; a candidate's keeps the loop's refits)."""
     cur, g, checked = model, None, model.train_cost
     budget = None if budget is None else PROBE_BUDGETS * budget
     shift, stalled = 1.0, False   # the product of the vertex steps taken; whether a move left the check's bracket
     for r in range(SIZE_ROUNDS):
         factors = (1.0 - SIZE_PROBE, 1.0 + SIZE_PROBE) if g is None else (g, g * g)
-        probes = run(probe_task, [(plugin, cur, name, f, budget, model) for f in factors])
+        probes = run(probe_task, [(plugin, cur, name, f, budget, model, precise) for f in factors])
         better = _better(cur, probes, inflation)
         if not better and g is None:   # a check; its vertex only where a round is left to check again
             step = vertex(cur, probes, min_gain, inflation) if r < SIZE_ROUNDS - 1 else None
-            probe = None if step is None else run(probe_task, [(plugin, cur, name, step, budget, model)])[0]
+            probe = None if step is None else run(probe_task, [(plugin, cur, name, step, budget, model, precise)])[0]
             if probe is None or not _better(cur, [probe], inflation):
                 return _found(name, model, cur, list(zip(factors, probes)), shift, stalled, separable)
             cur, shift = probe, shift * step

@@ -141,6 +141,12 @@ class ModelPlugin(ABC):
         was done. Default: as it is."""
         return model, ""
 
+    def polish(self, model: Fitted, budget: float | None) -> tuple[Fitted, str]:
+        """The final model refitted from its own optimum where the plug-in can refit it more precisely than the
+        loop's refits did (the engine's size search starts from it); returns it (or ``model`` when the refit fits
+        the training data no better) and a sentence on what was done. Default: as it is."""
+        return model, ""
+
     @abstractmethod
     def resimulated(self, model: Fitted) -> Fitted:
         """``model`` with whatever its report needs recomputed (a refit on a worker returns it lean)."""
@@ -150,11 +156,12 @@ class ModelPlugin(ABC):
         """Effect ``name``'s magnitude in ``model``, with its interval."""
 
     def probe_size(self, model: Fitted, name: str, factor: float, budget: float | None,
-                   reference: Fitted | None = None) -> Fitted | None:
+                   reference: Fitted | None = None, precise: bool = False) -> Fitted | None:
         """``model`` refitted with effect ``name``'s size held at ``factor`` times its value and every other unknown
         free (a point of the size's profile: the engine's check that the log pins the size as closely as the local
         interval says); ``budget`` as ``refit``, counted at the cost of simulating ``reference`` (None: of the
-        probe's start). None: the plug-in has no such refit (the local interval stands)."""
+        probe's start); ``precise``: refitted as ``polish`` refits (the final model's probes). None: the plug-in has
+        no such refit (the local interval stands)."""
         return None
 
     def size_inflation(self, model: Fitted, name: str) -> float:

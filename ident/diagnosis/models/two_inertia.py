@@ -20,6 +20,9 @@
   an evaluation budget (whole training logs simulated; a size probe's costlier simulations count more).
 - **Converge**: an accepted model still above the noise is identified from scratch with its effects too (the base
   model's parameters may have bent to mimic the missing effect into a far basin); the better one is kept.
+- **Polish**: the final model refitted from its optimum with finite-difference steps of a tenth of its unknowns'
+  standard deviations, as the identifier's windows are (``identify.SEARCH_STEP``), before its sizes are searched;
+  the final model's size probes use the same steps (``polish``, ``probe_size``).
 - **Outside rival**: a ripple of the motor friction along its travel, fitted in place of each named effect at the
   final model (``ripple``).
 - **Shape rival**: a named Stribeck friction refitted with an exponential decay in place of the Gaussian, a named
@@ -39,6 +42,8 @@ import pandas as pd
 
 from ...common.elsewhere import Elsewhere
 from ...fitting.identify import (
+    MAX_SEARCH_STEP,
+    SEARCH_STEP,
     Z95,
     BudgetExceeded,
     EvaluationBudget,
@@ -453,24 +458,27 @@ class TwoInertiaPlugin(ModelPlugin):
 
     def _fit_from(self, model: Fitted, effects: tuple[str, ...], head: np.ndarray, budget: float | None, *,
                   max_iter: int = 500, pin: list[int] | tuple[int, ...] = (), clip: bool = True,
-                  unit: float | None = None) -> Fitted:
+                  unit: float | None = None, steps: np.ndarray | None = None) -> Fitted:
         """``model``'s drive with ``effects`` on, refitted on the training part by IPOPT from ``head`` within
         ``budget`` (``_refitted``), simulated over the whole log."""
         st = model.state
-        theta, _ = self._refitted(model, effects, head, budget, max_iter=max_iter, pin=pin, clip=clip, unit=unit)
+        theta, _ = self._refitted(model, effects, head, budget, max_iter=max_iter, pin=pin, clip=clip, unit=unit,
+                                  steps=steps)
         return self.evaluate(effects, theta, st.base, st.scales, sens=st.sens, fixed=st.fixed)
 
     def _refitted(self, model: Fitted, effects: tuple[str, ...], head: np.ndarray, budget: float | None, *,
                   max_iter: int = 500, pin: list[int] | tuple[int, ...] = (), clip: bool = True,
-                  unit: float | None = None) -> tuple[np.ndarray, bool]:
+                  unit: float | None = None, steps: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
         """The unknowns of ``model``'s drive with ``effects`` on, refitted on the training part by IPOPT from
         ``head`` within ``budget`` (as ``refit``), and whether the budget ran out first (a fit that runs out keeps
         the best point it simulated, or its start when it simulated none). ``pin``: unknowns held where ``head``
         has them (inside their bounds); ``clip``: the start moved inside the bounds; ``unit``: the budget's
-        reference cost (``EvaluationBudget``; None: simulations are counted)."""
+        reference cost (``EvaluationBudget``; None: simulations are counted); ``steps``: the Jacobian's
+        finite-difference steps per unknown, where wider than its micro-steps (``search_steps``)."""
         st = model.state
         problem = st.problem(self.full, effects, self.stop, self.sigma, central=False,
                              budget=EvaluationBudget(None if budget is None else budget * self.stop, unit))
+        problem.fd_steps = steps
         try:
             lo, hi = problem.bounds()
             if pin:
@@ -541,7 +549,7 @@ class TwoInertiaPlugin(ModelPlugin):
         return Magnitude(mag, (lo, hi), EFFECTS[name].unit, values, _size_doubt(name, st.scales))
 
     def probe_size(self, model: Fitted, name: str, factor: float, budget: float | None,
-                   reference: Fitted | None = None) -> Fitted | None:
+                   reference: Fitted | None = None, precise: bool = False) -> Fitted | None:
         """The effect's linear coordinates (its size: the only one for every effect but the kinematic error, whose
         sine and cosine parts, of its 2/rev and where fitted its 4/rev, are held together, fixing its phases too) held
         at ``factor`` times their values; the other unknowns start where the model's covariance predicts them along
@@ -558,7 +566,37 @@ class TwoInertiaPlugin(ModelPlugin):
         head[held] += delta
         head[free] += cov[np.ix_(free, held)] @ np.linalg.lstsq(cov[np.ix_(held, held)], delta, rcond=None)[0]
         return self._fit_from(model, model.effects, head, budget, pin=held,
-                              unit=None if reference is None else reference.state.work)
+                              unit=None if reference is None else reference.state.work,
+                              steps=self.search_steps(model) if precise else None)
+
+    def polish(self, model: Fitted, budget: float | None) -> tuple[Fitted, str]:
+        """``model`` refitted from its optimum, every unknown free, with the steps of ``search_steps``; kept where
+        it fits the training data better.
+
+        Why: the loop's refits take their Jacobians by micro-steps (1e-6), which resolve the last digits but catch
+        the kinks of marginal stick/slip events, and Gauss-Newton then stalls on a long log (the identifier's
+        windows avoid it so: ``identify._fit_window``). Measured on the independent generator's torque-step log of a
+        strong kinematic error (seed 5102) with ten noise draws: the named size scattered 0.41 % (mean +0.15 %)
+        against a 95 % interval of +-0.17 %, three intervals in ten holding the truth; refitted free from the final
+        model held 10 % smaller or larger, micro-steps stayed there (+12000 noise variances), these steps came back
+        to one point (to 2e-5 of the size) 59 noise variances below the final model. Polished, the size scattered
+        0.14 % (mean +0.02 %) and seven intervals in ten held the truth: still narrower than the scatter."""
+        if model.state.rigid or not model.effects or model.effects == (FLEXIBILITY,):
+            return model, ""
+        st = model.state
+        better = self._fit_from(model, model.effects, st.theta, budget, steps=self.search_steps(model))
+        if not better.train_cost < model.train_cost:
+            return model, ""
+        self._cov(better)   # once, here: the size search's probes take their steps from it on every worker
+        return better, (f"refitted from its optimum with finite-difference steps of {SEARCH_STEP:g} of its unknowns' "
+                        f"standard deviations: training cost {model.train_cost:.6g} -> {better.train_cost:.6g} "
+                        f"({model.train_cost - better.train_cost:.3g} noise variances)")
+
+    def search_steps(self, model: Fitted) -> np.ndarray:
+        """Finite-difference steps of ``SEARCH_STEP`` x the standard deviations of ``model``'s unknowns (at most
+        ``MAX_SEARCH_STEP``): the Jacobian then follows the cost's trend across the noise's scale rather than the
+        kinks of single events (``polish``)."""
+        return np.minimum(SEARCH_STEP * np.sqrt(np.maximum(np.diag(self._cov(model)), 0.0)), MAX_SEARCH_STEP)
 
     def half(self, model: Fitted, which: int, budget: float | None) -> Fitted | None:
         """``model`` refitted on the first (``which`` 0) or the second half of the training part alone, every unknown

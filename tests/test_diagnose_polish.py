@@ -1,0 +1,43 @@
+"""The final model's polish (``TwoInertiaPlugin.polish``): every unknown refitted from the model's optimum with
+finite-difference steps of a tenth of its standard deviations (``search_steps``), as the identifier's windows are.
+
+On 10 s torque-step logs of a strong kinematic error (the independent generator's seed 5102, ten noise draws) the
+loop's refits, whose Jacobians take micro-steps, stopped short of the optimum (a refit from the size held 10 % off
+stayed there, +12000 noise variances) and the named size scattered 0.41 % against an interval of +-0.17 %; polished,
+0.14 %. On this 3 s log the micro-steps come back too; what is held here is the polish's own contract: from a model
+held 10 % off along the size, it returns to the optimum; from the optimum, it keeps a model no worse."""
+from __future__ import annotations
+
+import numpy as np
+
+from ident.diagnosis import DEFAULT_BUDGET
+from ident.diagnosis.engine import _Say, _Search
+from ident.diagnosis.models.two_inertia import TwoInertiaPlugin
+from ident.fitting.identify import MAX_SEARCH_STEP, SEARCH_STEP
+from ident.protocols.batch import WorkerPool
+from tests.diagnosis_matrix import SHORT, Case, load
+
+NAME = "kinematic_error"
+
+
+def test_the_polish_brings_a_displaced_model_back_to_its_optimum() -> None:
+    log, _ = load(Case("single", 5102, NAME, "strong", "steps"), **SHORT)
+    plugin = TwoInertiaPlugin(log, candidates=(NAME,))
+    with WorkerPool(0) as pool:
+        final = _Search(plugin, pool, DEFAULT_BUDGET, 3, _Say(False)).run()
+    assert final.effects == (NAME,)
+    steps = plugin.search_steps(final)
+    sd = np.sqrt(np.diag(plugin._cov(final)))
+    assert np.all(steps > 0) and np.allclose(steps, np.minimum(SEARCH_STEP * sd, MAX_SEARCH_STEP))
+
+    size = plugin.magnitude(final, NAME).value
+    held = plugin.probe_size(final, NAME, 0.9, DEFAULT_BUDGET, precise=True)
+    assert abs(plugin.magnitude(held, NAME).value / size - 0.9) < 1e-9
+    assert held.train_cost > final.train_cost + 1000.0   # far up the size's profile
+    back, said = plugin.polish(held, DEFAULT_BUDGET)
+    assert "finite-difference steps of 0.1" in said
+    assert abs(plugin.magnitude(back, NAME).value / size - 1.0) < 0.005
+    assert back.train_cost < final.train_cost + 1.0   # within a noise variance of the optimum
+
+    kept, _ = plugin.polish(final, DEFAULT_BUDGET)
+    assert kept.train_cost <= final.train_cost
