@@ -1397,13 +1397,19 @@ def _fit_scale_minima(problem: OutputError, theta: np.ndarray, iterations: int) 
     return tracks
 
 
+def search_steps_of(cov: np.ndarray) -> np.ndarray:
+    """Finite-difference steps of ``SEARCH_STEP`` x the standard deviations of ``cov`` (at most
+    ``MAX_SEARCH_STEP``): a Jacobian taken with them follows the cost's trend across the noise's scale rather than
+    the kinks of single stick/slip events (``_fit_window``; the diagnosis's polish, too)."""
+    return np.minimum(SEARCH_STEP * np.sqrt(np.maximum(np.diag(cov), 0.0)), MAX_SEARCH_STEP)
+
+
 def _fit_searching(problem: OutputError, theta: np.ndarray, cov: np.ndarray | None, iterations: int
                    ) -> tuple[np.ndarray, dict[str, Any]]:
-    """IPOPT from ``theta`` with finite-difference steps of ``SEARCH_STEP`` x the standard deviations of ``cov``
-    (at most ``MAX_SEARCH_STEP``; the micro-steps without ``cov``): see ``_fit_window`` for why."""
+    """IPOPT from ``theta`` with the finite-difference steps of ``search_steps_of(cov)`` (the micro-steps without
+    ``cov``): see ``_fit_window`` for why."""
     lo, hi = problem.bounds()
-    problem.fd_steps = (np.minimum(SEARCH_STEP * np.sqrt(np.maximum(np.diag(cov), 0.0)), MAX_SEARCH_STEP)
-                        if cov is not None else None)
+    problem.fd_steps = search_steps_of(cov) if cov is not None else None
     try:
         return fit_ipopt(problem, theta, lo, hi, iterations)
     finally:

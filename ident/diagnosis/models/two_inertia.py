@@ -42,7 +42,6 @@ import pandas as pd
 
 from ...common.elsewhere import Elsewhere
 from ...fitting.identify import (
-    MAX_SEARCH_STEP,
     SEARCH_STEP,
     Z95,
     BudgetExceeded,
@@ -52,6 +51,7 @@ from ...fitting.identify import (
     fit_ipopt,
     fit_pipeline,
     identify,
+    search_steps_of,
 )
 from ...fitting.logs import DriveLog, LogError
 from ...fitting.noise import at_noise_level, residual_noise_std
@@ -593,10 +593,8 @@ class TwoInertiaPlugin(ModelPlugin):
                         f"({model.train_cost - better.train_cost:.3g} noise variances)")
 
     def search_steps(self, model: Fitted) -> np.ndarray:
-        """Finite-difference steps of ``SEARCH_STEP`` x the standard deviations of ``model``'s unknowns (at most
-        ``MAX_SEARCH_STEP``): the Jacobian then follows the cost's trend across the noise's scale rather than the
-        kinks of single events (``polish``)."""
-        return np.minimum(SEARCH_STEP * np.sqrt(np.maximum(np.diag(self._cov(model)), 0.0)), MAX_SEARCH_STEP)
+        """The identifier's search steps (``identify.search_steps_of``) from ``model``'s covariance (``polish``)."""
+        return search_steps_of(self._cov(model))
 
     def half(self, model: Fitted, which: int, budget: float | None) -> Fitted | None:
         """``model`` refitted on the first (``which`` 0) or the second half of the training part alone, every unknown
