@@ -845,6 +845,32 @@ def test_a_model_is_read_against_the_lower_of_the_two_noise_estimates() -> None:
     assert right["noise_load_rad"] <= sigma and right["train_over_noise_load"] == pytest.approx(1.0, abs=0.02)
 
 
+def test_a_polish_that_finds_a_stall_is_a_doubt_on_every_name() -> None:
+    """``_Search._polished``: the final model's polish (``plugin.polish``) is said in the notes; where it lowers the
+    training cost by the ``SEPARABLE`` noise variances the log tells apart or more, every name gets a doubt (the
+    final model had stalled, as a size search that moves says: the comparisons that chose the names rest on stalled
+    refits); a smaller fall is a refinement, no doubt. Measured: the polish lowered the training cost 914 noise
+    variances on a torque-step log of a kinematic error (drive 5103), 0.0003-0.25 on the quick sample's logs."""
+    from ident.diagnosis.engine import SEPARABLE, _Say, _Search
+    from ident.diagnosis.result import NamedEffect
+
+    names = ("stribeck", "hysteresis")
+    for fall, doubted in ((SEPARABLE * 0.9, False), (SEPARABLE * 1.1, True)):
+        class Plugin(_OverInMetrics):
+            @staticmethod
+            def polish(model: Fitted, budget: float | None) -> tuple[Fitted, str]:
+                return replace(model, train_cost=model.train_cost - fall), "refitted (stand-in)"
+
+        search = _Search(Plugin(), _Pool(), None, 3, _Say(False))
+        search.named = [NamedEffect(n, math.nan, (math.nan, math.nan), "", "", None, None) for n in names]
+        model = Fitted(names, 35000.0, 15000.0, np.ones(100), 35000, 8, {"over": (1.0, 1.0)})
+        polished = search._polished(model)
+        assert polished.train_cost == model.train_cost - fall
+        assert any(n.startswith("polish: the final model refitted") for n in search.notes)
+        for n in names:
+            assert any("the final model had stalled" in d for d in search.doubts.get(n, [])) == doubted, (fall, n)
+
+
 def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None:
     """The loop's last size search (``_Search._settle``) probes every named size on a final model at the noise, and
     none on one above ``CONFIDENT_OVER_NOISE`` times it on the training data (the data the search fits): its names

@@ -408,11 +408,21 @@ class _Search:
     def _polished(self, model: Fitted) -> Fitted:
         """The final model polished before its sizes are searched (``plugin.polish``): the search's probes and its
         intervals are then measured from an optimum the loop's refits may have stalled short of. The polish is said
-        in the notes; it casts no doubt on a name (unlike a size search that moves: it refines the optimum of the
-        model the loop chose, with every unknown free, and changes no comparison between candidates)."""
+        in the notes. Like a size search that moves (``sizes._found``), a polish that lowers the training cost by
+        ``SEPARABLE`` noise variances or more is a doubt on every name: the final model had stalled, the comparisons
+        that chose its effects rest on stalled refits, and the rivals' may have stalled as well; a smaller fall is a
+        refinement the log cannot tell apart."""
         polished, said = self.plugin.polish(model, self.budget)
-        if said:
-            self.notes.append(f"polish: the final model {said}")
+        if not said:
+            return polished
+        self.notes.append(f"polish: the final model {said}")
+        fall = model.train_cost - polished.train_cost
+        if fall >= SEPARABLE:
+            for e in self.named:
+                self.doubts.setdefault(e.name, []).append(
+                    f"the final model had stalled: refitted from its optimum with wider finite-difference steps it "
+                    f"fits the training data {fall:.3g} noise variances better (the log tells apart {SEPARABLE:.3g}), "
+                    "so the comparisons that chose it rest on stalled refits, and its rivals' may have stalled as well")
         return polished
 
     def _settle_one(self, model: Fitted, name: str, stalls: dict[str, float]) -> tuple[Fitted, bool]:
