@@ -26,7 +26,7 @@ def pytest_configure(config: pytest.Config) -> None:
 #: a fresh machine, bench/README.md stop 66)
 HEAVIEST_FIRST = ("test_identify_reference.py", "test_diagnose.py", "test_diagnose_shapes.py", "test_identify.py",
                   "test_resolution.py", "test_fmu_vs_generator.py", "test_diagnose_rigid.py", "test_faults.py",
-                  "test_diagnose_polish.py", "test_reference_logs.py", "test_memo.py")
+                  "test_diagnose_polish.py", "test_diagnose_intervals.py", "test_reference_logs.py", "test_memo.py")
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
