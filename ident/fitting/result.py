@@ -36,12 +36,11 @@ def at_bound(theta: np.ndarray) -> list[str]:
     return [name for i, name in enumerate(NAMES) if min(theta[i] - lo[i], hi[i] - theta[i]) < AT_BOUND]
 
 
-def larger_variances(sandwich: np.ndarray, noise_only: np.ndarray, *more: np.ndarray) -> np.ndarray:
-    """Per parameter the largest of the variances (the sandwich's, the noise-only's and ``more``'s), with the
-    sandwich's correlations: the covariance behind the reported intervals. Symmetric and positive semi-definite like
-    the sandwich (a row-wise choice between the matrices would be neither), so a Wald statistic or a regression
-    along the valley can use it."""
-    s = np.sqrt(np.max([np.diag(c) for c in (sandwich, noise_only, *more)], axis=0))
+def larger_variances(sandwich: np.ndarray, noise_only: np.ndarray) -> np.ndarray:
+    """Per parameter the larger of the two variances, with the sandwich's correlations: the covariance behind the
+    reported intervals. Symmetric and positive semi-definite like the sandwich (a row-wise choice between the two
+    matrices would be neither), so a Wald statistic or a regression along the valley can use it."""
+    s = np.sqrt(np.maximum(np.diag(sandwich), np.diag(noise_only)))
     d = np.sqrt(np.maximum(np.diag(sandwich), 1e-300))
     return sandwich / np.outer(d, d) * np.outer(s, s)
 

@@ -620,7 +620,7 @@ class TwoInertiaPlugin(ModelPlugin):
         finally:
             problem.close()
         out = self.evaluate(model.effects, theta, st.base, st.scales, sens=st.sens, fixed=st.fixed)
-        out.state.covs, out.state.trend = covs, larger_variances(trend[1], trend[0], *covs)
+        out.state.covs, out.state.trend = covs, larger_variances(trend[1], trend[0])
         return out
 
     def constancy(self, first: Fitted, second: Fitted) -> tuple[float, int]:
@@ -753,24 +753,17 @@ class TwoInertiaPlugin(ModelPlugin):
         return st.cov
 
     def _interval_cov(self, model: Fitted) -> np.ndarray:
-        """The covariance behind the reported intervals and the constancy check: per unknown the largest variance of
-        ``_cov``'s two and of theirs with the Jacobian taken across the noise's scale (``identify.trend_covariances``:
-        the micro-step one, which the searches step by, can catch a marginal stick/slip event and report far more
-        information than the log holds), with the latter's correlations; once per model.
-
-        Why the largest and not the trend's alone: on the generator's 3 s torque-step logs the trend's standard
-        deviation of a viscous coefficient came out 0.68-0.85x the micro-step one on two of four (both intervals
-        holding the truth), 1.0x and 4.8x on the others (the micro-step interval missing it there, z 2.6): the
-        intervals only widen where the log's own sensitivities say so."""
+        """The covariance behind the reported intervals and the constancy check: ``_cov``'s, with the Jacobian taken
+        across the noise's scale (``identify.trend_covariances``: the micro-step one, which the searches step by, can
+        catch a marginal stick/slip event and report far more information than the log holds); once per model."""
         st = model.state
         if st.trend is None:
             problem = st.problem(self.full, model.effects, self.stop, self.sigma)
-            local = self._covs(model)
             try:
-                noise, sand = trend_covariances(problem, st.theta, self._block, local=local)
+                noise, sand = trend_covariances(problem, st.theta, self._block, local=self._covs(model))
             finally:
                 problem.close()
-            st.trend = larger_variances(sand, noise, *local)
+            st.trend = larger_variances(sand, noise)
         return st.trend
 
     def _covs(self, model: Fitted) -> tuple[np.ndarray, np.ndarray]:
