@@ -59,7 +59,7 @@ from . import memo
 from .ahead import Result, block, run_ahead, usable
 from .logs import DriveLog, LogError
 from .noise import noise_std, residual_noise_std, white_noise_std
-from .result import BOUNDS, NAMES, Z95, Estimate, TwoInertiaFit, at_bound, larger_variances, param_bounds
+from .result import BOUNDS, NAMES, Z95, Estimate, TwoInertiaFit, at_bound, param_bounds
 from .start import W2_SPREAD, StartError, dominant_frequency, equation_error_start, standstill_runs
 
 __all__ = [
@@ -627,32 +627,6 @@ def covariances(problem: OutputError, theta: np.ndarray, block: int, scaled: boo
             meat += np.outer(g, g)
     sandwich = inv @ meat @ inv * (m / dof)
     return noise_only, sandwich, J
-
-
-def trend_covariances(problem: OutputError, theta: np.ndarray, block: int, skip: int = 0,
-                      local: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(noise-only, sandwich) of ``covariances`` with the Jacobian taken at the steps of ``search_steps_of`` the
-    micro-step covariance (``local``, its (noise-only, sandwich) when computed already): the sensitivities across
-    the noise's scale rather than at the kinks of single stick/slip events, for intervals.
-
-    Why: a micro-step column (3e-8, 1e-6) can catch a marginal event flipping, and the information it reports is
-    then far larger than what the log holds. Measured on the independent generator's 10 s torque-step logs, noise
-    redrawn on one true trajectory (one diagnosis per draw), the named size's standard deviation against the
-    scatter of the sizes: a viscous load coefficient (drive 5102, medium) 1.2e-10 micro-step (draws' sizes 3-18 of
-    those from the truth) against 1.0e-9 here, the sizes' scatter 0.95e-9 (5 draws); a strong kinematic error 0.03 %
-    against 0.14 % here, the sizes 0.07 % around a +0.05 % bias (10 draws). The result does not depend on the steps
-    over a decade (x1, x3, x10 of these: the same to 1 %)."""
-    if local is None:
-        noise, sand, _ = covariances(problem, theta, block, skip=skip)
-    else:
-        noise, sand = local
-    saved = problem.fd_steps
-    problem.fd_steps = search_steps_of(larger_variances(sand, noise))
-    try:
-        noise, sand, _ = covariances(problem, theta, block, skip=skip)
-    finally:
-        problem.fd_steps = saved
-    return noise, sand
 
 
 def cramer_rao(log: DriveLog, theta: np.ndarray, sigma_load: float, base: DriveParams | None = None

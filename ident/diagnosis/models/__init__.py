@@ -153,9 +153,7 @@ class ModelPlugin(ABC):
 
     @abstractmethod
     def magnitude(self, model: Fitted, name: str) -> Magnitude:
-        """Effect ``name``'s magnitude in ``model``, with its 95 % interval: from the sensitivities the log holds across
-        its noise's scale, not from a derivative a single stick/slip event can dominate (the two-inertia model:
-        ``identify.trend_covariances``)."""
+        """Effect ``name``'s magnitude in ``model``, with its interval."""
 
     def probe_size(self, model: Fitted, name: str, factor: float, budget: float | None,
                    reference: Fitted | None = None, precise: bool = False) -> Fitted | None:

@@ -52,7 +52,6 @@ from ...fitting.identify import (
     fit_pipeline,
     identify,
     search_steps_of,
-    trend_covariances,
 )
 from ...fitting.logs import DriveLog, LogError
 from ...fitting.noise import at_noise_level, residual_noise_std
@@ -162,7 +161,6 @@ class TwoInertiaState:
     sim: dict[str, np.ndarray] | None = None
     cov: np.ndarray | None = None
     covs: tuple[np.ndarray, np.ndarray] | None = None   # (noise-only, sandwich) that ``cov`` is made of
-    trend: np.ndarray | None = None   # the intervals' covariance (``TwoInertiaPlugin._interval_cov``)
     rigid: bool = False
     sens: Sensitivity = field(default_factory=dict)
     work: float | None = None   # model evaluations per training sample of its simulation (``simulate_full``)
@@ -267,7 +265,7 @@ class TwoInertiaPlugin(ModelPlugin):
         if st.rigid or st.sim is not None:
             return model
         out = self.evaluate(model.effects, st.theta, st.base, st.scales, keep=True, sens=st.sens, fixed=st.fixed)
-        out.state.cov, out.state.covs, out.state.trend = st.cov, st.covs, st.trend
+        out.state.cov, out.state.covs = st.cov, st.covs
         return out
 
     def candidates(self, model: Fitted) -> tuple[str, ...]:
@@ -533,10 +531,11 @@ class TwoInertiaPlugin(ModelPlugin):
 
     def magnitude(self, model: Fitted, name: str) -> Magnitude:
         st = model.state
-        cov = self._interval_cov(model)
         if name == FLEXIBILITY:
+            cov = self._cov(model)
             K, sd = st.params.K_s, math.sqrt(max(cov[0, 0], 0.0))
             return Magnitude(K, (K * math.exp(-Z95 * sd), K * math.exp(Z95 * sd)), "N.m/rad", {"K_s": K})
+        cov = self._cov(model)
         idx = _effect_indices(model, name)
         coords = [c for c in _layout(model) if c.effect == name]
         x = st.theta[idx]
@@ -581,8 +580,7 @@ class TwoInertiaPlugin(ModelPlugin):
         against a 95 % interval of +-0.17 %, three intervals in ten holding the truth; refitted free from the final
         model held 10 % smaller or larger, micro-steps stayed there (+12000 noise variances), these steps came back
         to one point (to 2e-5 of the size) 59 noise variances below the final model. Polished, the size scattered
-        0.14 % (mean +0.02 %) and seven intervals in ten held the truth: still narrower than the scatter, which the
-        intervals' own covariance then explained (``_interval_cov``)."""
+        0.14 % (mean +0.02 %) and seven intervals in ten held the truth: still narrower than the scatter."""
         if model.state.rigid or not model.effects or model.effects == (FLEXIBILITY,):
             return model, ""
         st = model.state
@@ -613,14 +611,13 @@ class TwoInertiaPlugin(ModelPlugin):
             lo, hi = problem.bounds()
             theta = _ipopt_or_best(problem, np.clip(st.theta, lo, hi), lo, hi)
             problem.budget, problem.central = None, True
-            covs = covariances(problem, theta, self._block, skip=problem.skip)[:2]
-            trend = trend_covariances(problem, theta, self._block, skip=problem.skip, local=covs)
+            covs = covariances(problem, theta, self._block, skip=problem.skip)
         except BudgetExceeded:
             return None
         finally:
             problem.close()
         out = self.evaluate(model.effects, theta, st.base, st.scales, sens=st.sens, fixed=st.fixed)
-        out.state.covs, out.state.trend = covs, larger_variances(trend[1], trend[0])
+        out.state.covs = covs[:2]
         return out
 
     def constancy(self, first: Fitted, second: Fitted) -> tuple[float, int]:
@@ -629,7 +626,7 @@ class TwoInertiaPlugin(ModelPlugin):
         not see). The halves' data are independent, so the difference's covariance is the sum of theirs."""
         keep = [0, 1, 2, *range(4, first.state.theta.size)]
         d = first.state.theta[keep] - second.state.theta[keep]
-        V = (self._interval_cov(first) + self._interval_cov(second))[np.ix_(keep, keep)]
+        V = (self._cov(first) + self._cov(second))[np.ix_(keep, keep)]
         return float(d @ np.linalg.pinv(V, rcond=1e-12) @ d), len(keep)
 
     def effect_start(self, model: Fitted, name: str) -> dict[str, float]:
@@ -751,20 +748,6 @@ class TwoInertiaPlugin(ModelPlugin):
             noise, sand = self._covs(model)
             st.cov = larger_variances(sand, noise)
         return st.cov
-
-    def _interval_cov(self, model: Fitted) -> np.ndarray:
-        """The covariance behind the reported intervals and the constancy check: ``_cov``'s, with the Jacobian taken
-        across the noise's scale (``identify.trend_covariances``: the micro-step one, which the searches step by, can
-        catch a marginal stick/slip event and report far more information than the log holds); once per model."""
-        st = model.state
-        if st.trend is None:
-            problem = st.problem(self.full, model.effects, self.stop, self.sigma)
-            try:
-                noise, sand = trend_covariances(problem, st.theta, self._block, local=self._covs(model))
-            finally:
-                problem.close()
-            st.trend = larger_variances(sand, noise)
-        return st.trend
 
     def _covs(self, model: Fitted) -> tuple[np.ndarray, np.ndarray]:
         """(noise-only, sandwich) covariances of the unknowns (``identify.covariances``, blocks of 20 ms)."""
