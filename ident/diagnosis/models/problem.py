@@ -40,6 +40,18 @@ def same_propagator(p: DriveParams) -> DriveParams:
     return p.with_values(**SAME_PROPAGATOR)
 
 
+#: the finite-difference step of an effect's coordinates (x ~ 1: an effect the log shows plainly,
+#: ``coordinates``). Why not the 1e-6 of the initial deflection: a simulation's accumulated round-off (measured as the
+#: second difference of the load angle over equal parameter steps: 4e-14 rad rms over a 3 s log at 5 kHz, 5e-6 of its
+#: load noise, the same for either propagator) divided by a 1e-6 step made a coordinate's column 3.5x its size (a
+#: viscous load coefficient: norm 357 against 102 with steps across the noise's scale, correlation 0.72; the kinematic
+#: error's four: 0.96-0.99), and the refits' Gauss-Newton steps along it that much too short. At 1e-3 the column
+#: is the one across the noise's scale to 0.1 % (1e-5: 8 %, 1e-4: 1.4 %), and the method's own error (h^2 times the
+#: third derivative, on a coordinate whose unit is a plain effect) is far below it. Measured through the loop on the
+#: generator's 10 s logs with 1e-4: a strong kinematic error's torque-step log (drive 5103) 221 s -> 63 s, its false
+#: asymmetric friction gone; a two-effect log 176 s -> 135 s and an outside one 133 s -> 119 s, the same names.
+COORD_STEP = 1e-3
+
 #: a fit stalls when its best cost has not fallen by more than this (relative) over ``stall_after`` simulations: the
 #: cost of an exact stick-slip model has kinks where a marginal event flips, and IPOPT's line search can spend a
 #: dozen simulations per iteration on one (measured: 13 per iteration, 100 of a refit's 300)
@@ -154,7 +166,8 @@ class ModelProblem(OutputError):
         return steps
 
     def jacobian(self, theta: np.ndarray) -> np.ndarray:
-        """Central differences as ``OutputError`` (3e-8 in the log-parameters, 1e-6 elsewhere); one-sided at a
+        """Central differences as ``OutputError`` (3e-8 in the log-parameters, 1e-6 in the initial deflection,
+        ``COORD_STEP`` in an effect's coordinates); one-sided at a
         bound, where the FMU would refuse the other side (e.g. a viscous coefficient of exactly 0); a zero column for
         an unknown whose bounds hold it (IPOPT treats it as a parameter: no simulation is spent on it). ``central``
         False: forward differences (half the simulations; a candidate's refit, whose optimum only has to rank the
@@ -166,7 +179,7 @@ class ModelProblem(OutputError):
             if lo[i] == hi[i]:
                 steps.append(None)
                 continue
-            h = 3e-8 if i < 3 else 1e-6
+            h = 3e-8 if i < 3 else 1e-6 if i == 3 else COORD_STEP
             if self.fd_steps is not None and i < self.fd_steps.size:  # the continuation's search steps
                 h = max(h, float(self.fd_steps[i]))
             up, down = theta.copy(), theta.copy()

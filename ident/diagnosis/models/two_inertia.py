@@ -81,7 +81,8 @@ HOLDBACK_FRACTION = 0.3
 #: IPOPT iterations of a drop / backward refit (a candidate's refit runs until its budget is spent)
 REFIT_ITER = 30
 #: the screen's one-sided difference: the candidate's coordinate is set to make the load move by about this many
-#: noise sigmas (RMS over the training part): far above the FMU's round-off (~1e-10 sigma) and the propagators'
+#: noise sigmas (RMS over the training part): far above the FMU's round-off (accumulated over a log: ~5e-6 sigma,
+#: ``problem.COORD_STEP``) and the propagators'
 #: differences (~1e-3 sigma), small against the motion (a linear response)
 SCREEN_RESPONSE_SIGMA = 1.0
 FLEXIBILITY = "flexibility"
