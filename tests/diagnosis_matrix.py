@@ -110,6 +110,21 @@ def diagnosed(case: Case, **options: Any) -> tuple[Any, dict[str, Any]]:
     return _DIAGNOSED[key]
 
 
+def searched(case: Case, name: str) -> tuple[Any, Any, dict[str, Any]]:
+    """(the two-inertia plug-in, the loop's final model, the generator's truth) of ``case``'s ``SHORT`` log with
+    ``name`` the only candidate, in this process (the tests that look inside a final model)."""
+    from ident.diagnosis import DEFAULT_BUDGET
+    from ident.diagnosis.engine import _Say, _Search
+    from ident.diagnosis.models.two_inertia import TwoInertiaPlugin
+    from ident.protocols.batch import WorkerPool
+
+    log, truth = load(case, **SHORT)
+    plugin = TwoInertiaPlugin(log, candidates=(name,))
+    with WorkerPool(0) as pool:
+        final = _Search(plugin, pool, DEFAULT_BUDGET, 3, _Say(False)).run()
+    return plugin, final, truth
+
+
 # ------------------------------------------------------------------------------------------ scoring -------------
 
 def library_truth(effect: str, truth: dict[str, Any], params: dict[str, float] | None = None) -> float | None:

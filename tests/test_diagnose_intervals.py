@@ -10,21 +10,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ident.diagnosis import DEFAULT_BUDGET
-from ident.diagnosis.engine import _Say, _Search
 from ident.diagnosis.models.problem import COORD_STEP
-from ident.diagnosis.models.two_inertia import TwoInertiaPlugin
-from ident.protocols.batch import WorkerPool
-from tests.diagnosis_matrix import SHORT, Case, library_truth, load
+from tests.diagnosis_matrix import Case, library_truth, searched
 
 NAME = "viscous_load"
 
 
 def test_a_viscous_size_interval_holds_the_truth_and_its_column_clears_the_round_off() -> None:
-    log, truth = load(Case("single", 5103, NAME, "medium", "steps"), **SHORT)
-    plugin = TwoInertiaPlugin(log, candidates=(NAME,))
-    with WorkerPool(0) as pool:
-        final = _Search(plugin, pool, DEFAULT_BUDGET, 3, _Say(False)).run()
+    plugin, final, truth = searched(Case("single", 5103, NAME, "medium", "steps"), NAME)
     assert final.effects == (NAME,)
     mag = plugin.magnitude(final, NAME)
     assert mag.ci95[0] < library_truth(NAME, truth) < mag.ci95[1]

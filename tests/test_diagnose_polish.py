@@ -11,20 +11,14 @@ from __future__ import annotations
 import numpy as np
 
 from ident.diagnosis import DEFAULT_BUDGET
-from ident.diagnosis.engine import _Say, _Search
-from ident.diagnosis.models.two_inertia import TwoInertiaPlugin
 from ident.fitting.identify import MAX_SEARCH_STEP, SEARCH_STEP
-from ident.protocols.batch import WorkerPool
-from tests.diagnosis_matrix import SHORT, Case, load
+from tests.diagnosis_matrix import Case, searched
 
 NAME = "kinematic_error"
 
 
 def test_the_polish_brings_a_displaced_model_back_to_its_optimum() -> None:
-    log, _ = load(Case("single", 5102, NAME, "strong", "steps"), **SHORT)
-    plugin = TwoInertiaPlugin(log, candidates=(NAME,))
-    with WorkerPool(0) as pool:
-        final = _Search(plugin, pool, DEFAULT_BUDGET, 3, _Say(False)).run()
+    plugin, final, _ = searched(Case("single", 5102, NAME, "strong", "steps"), NAME)
     assert final.effects == (NAME,)
     steps = plugin.search_steps(final)
     sd = np.sqrt(np.diag(plugin._cov(final)))
