@@ -48,8 +48,10 @@ def same_propagator(p: DriveParams) -> DriveParams:
 #: error's four: 0.96-0.99), and the refits' Gauss-Newton steps along it that much too short. At 1e-3 the column
 #: is the one across the noise's scale to 0.1 % (1e-5: 8 %, 1e-4: 1.4 %), and the method's own error (h^2 times the
 #: third derivative, on a coordinate whose unit is a plain effect) is far below it. Measured through the loop on the
-#: generator's 10 s logs with 1e-4: a strong kinematic error's torque-step log (drive 5103) 221 s -> 63 s, its false
-#: asymmetric friction gone; a two-effect log 176 s -> 135 s and an outside one 133 s -> 119 s, the same names.
+#: generator's 10 s logs (bench/README.md, stop 72): the viscous-load and kinematic-error torque-step logs' intervals
+#: hold the truth on 20 of 20 (with 1e-6, five noise draws of one viscous log: 0 of 5), six names right and tentative
+#: before are confident, a false asymmetric friction is gone and that log takes 63 s instead of 221 s; the quick sample
+#: names the same.
 COORD_STEP = 1e-3
 
 #: a fit stalls when its best cost has not fallen by more than this (relative) over ``stall_after`` simulations: the
