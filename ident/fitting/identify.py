@@ -302,14 +302,20 @@ class OutputError:
         theta = np.asarray(theta, dtype=float)
         steps = []
         for i in range(theta.size):
-            h = 3e-8 if i < 3 else 1e-6
-            if self.fd_steps is not None:
-                h = max(h, float(self.fd_steps[i]))
+            h = self.fd_step(i)
             up, down = theta.copy(), theta.copy()
             up[i] += h
             down[i] -= h
             steps.append((up, down, 2 * h))
         return self.differences(theta, steps)
+
+    def fd_step(self, i: int) -> float:
+        """The finite-difference step of unknown ``i`` (``jacobian``): 3e-8 in the log-parameters, 1e-6 in the
+        initial deflection, widened to ``fd_steps`` where set."""
+        h = 3e-8 if i < 3 else 1e-6
+        if self.fd_steps is not None and i < self.fd_steps.size:
+            h = max(h, float(self.fd_steps[i]))
+        return h
 
     def differences(self, theta: np.ndarray, steps: list[tuple[np.ndarray, np.ndarray, float] | None]) -> np.ndarray:
         """The finite-difference Jacobian from one (up, down, their distance) per unknown, or None for an unknown

@@ -181,14 +181,17 @@ class ModelProblem(OutputError):
             if lo[i] == hi[i]:
                 steps.append(None)
                 continue
-            h = 3e-8 if i < 3 else 1e-6 if i == 3 else COORD_STEP
-            if self.fd_steps is not None and i < self.fd_steps.size:  # the continuation's search steps
-                h = max(h, float(self.fd_steps[i]))
+            h = self.fd_step(i)
             up, down = theta.copy(), theta.copy()
             up[i] = min(theta[i] + h, hi[i])
             down[i] = max(theta[i] - h, lo[i]) if self.central or up[i] == theta[i] else theta[i]
             steps.append((up, down, up[i] - down[i]))
         return self.differences(theta, steps)
+
+    def fd_step(self, i: int) -> float:
+        """``OutputError.fd_step``, and at least ``COORD_STEP`` in an effect's coordinates."""
+        h = super().fd_step(i)
+        return max(h, COORD_STEP) if i >= 4 else h
 
     def load_rows(self) -> slice:
         """The load sensor's rows of the residual vector."""
