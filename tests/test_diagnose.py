@@ -683,8 +683,7 @@ def test_a_check_that_rises_unequally_moves_the_size_to_its_profiles_vertex() ->
     the point checked (the measured case: named viscous coefficients of torque-step logs 4-6 standard deviations from
     the truth, checks rising 1010 / 548 and 7090 / 4980 noise variances). One probe at the parabola's vertex finds
     it, and the check is repeated there. A fall below what the log tells apart (``SEPARABLE``) is a refinement and no
-    doubt on the name; a larger one is a stall and is; a candidate's search (practical significance 1 %) does not
-    spend the probe; a check that rises alike spends none."""
+    doubt on the name; a larger one is a stall and is; a check that rises alike spends none."""
     from ident.diagnosis.engine import SEPARABLE
     from ident.diagnosis.sizes import SIZE_PROBE, search_size, vertex
 
@@ -705,94 +704,8 @@ def test_a_check_that_rises_unequally_moves_the_size_to_its_profiles_vertex() ->
         assert rounds[:2] == [[1 - SIZE_PROBE, 1 + SIZE_PROBE], [1.03]]
         assert [f for f, _ in found.checks] == [1 - SIZE_PROBE, 1 + SIZE_PROBE]
         assert (found.doubt == "") == (a * 0.03 ** 2 < SEPARABLE) and (found.refined != "") == (found.doubt == "")
-        cand = search_size(run, None, fitted(1.0, a), "viscous_motor", None, min_gain=1.01)
-        assert cand.model.state == 1.0
     level = fitted(1.03, 1e5)
     assert vertex(level, [fitted(1.03 * 0.9, 1e5), fitted(1.03 * 1.1, 1e5)]) is None
-
-
-def test_each_candidate_searches_its_size_before_the_candidates_are_compared() -> None:
-    """``sizes.search_candidate``: a candidate whose free refit stalled at 1/6 of its profile's minimum is moved
-    there (its probes counted, the move flagged) before the loop compares it with its rivals; a move that lowered the
-    training cost by less than the practical-significance ratio is not checked again (it could not change the
-    winner), nor is a refit searched whose training cost is already at the noise; a search that uses up its rounds
-    still moving is flagged (a rival so flagged makes the winner tentative); a plug-in without probes leaves the refit
-    as it was."""
-    from types import SimpleNamespace
-
-    from ident.diagnosis.models import CandidateFit
-    from ident.diagnosis.sizes import SIZE_PROBE, SIZE_ROUNDS, search_candidate, search_size
-
-    def fitted(size: float, floor: float = 1000.0, n: int = 500) -> Fitted:
-        """A profile in noise variances with its minimum at 6: ``floor`` there, from ``n`` samples."""
-        m = Fitted(("viscous_motor",), floor + 1e4 * math.log(size / 6.0) ** 2, 0.0, np.ones(1), n, 5)
-        m.state = SimpleNamespace(size=size, sim=None, floor=floor, n=n)
-        return m
-
-    class Profile:
-        def probe_size(self, model, name, factor, budget, reference=None, precise=False):
-            return fitted(model.state.size * factor, model.state.floor, model.state.n)
-
-        def size_inflation(self, model, name):
-            return 1.0   # the residual is white noise
-
-    class NoProbes(Profile):
-        def probe_size(self, model, name, factor, budget, reference=None, precise=False):
-            return None
-
-    moved = search_candidate(Profile(), CandidateFit("viscous_motor", fitted(1.0)), None, 1.01)
-    assert moved.size_moved and moved.size_probes > 2
-    assert abs(math.log(moved.model.state.size / 6.0)) < 2 * math.log(1 + SIZE_PROBE)
-    near = search_candidate(Profile(), CandidateFit("viscous_motor", fitted(6.0 * 1.02)), None, 1.01)
-    assert not near.size_moved and near.size_probes == 2 and near.model.state.size == 6.0 * 1.02
-    # 5 % off costs 2.4 %: the check brackets the minimum, its vertex (one probe) lands within 1 % and is checked
-    bracketed = search_candidate(Profile(), CandidateFit("viscous_motor", fitted(6.0 * 1.05)), None, 1.01)
-    assert bracketed.size_moved and bracketed.size_probes == 5 and not bracketed.size_unsettled
-    assert abs(bracketed.model.state.size / 6.0 - 1.0) < 0.01
-    # 1.25x off on a cost of 1e6 from 1e5 samples (residual variance 10): the moves (0.9x, 0.9x again) gain 0.05 %,
-    # above one residual variance but below the practical-significance ratio, and the search ends there unchecked
-    small = search_candidate(Profile(), CandidateFit("viscous_motor", fitted(6.0 * 1.25, 1e6, 10**5)), None, 1.01)
-    assert small.size_moved and small.size_probes == 6
-    settled = search_size(lambda fn, tasks: [fn(t) for t in tasks], Profile(),
-                          fitted(6.0 * 1.25, 1e6, 10**5), "viscous_motor", None)
-    assert len(settled.checks) == 2 and abs(settled.model.state.size - 6.0) < 6.0 * 0.06
-    kept = search_candidate(NoProbes(), CandidateFit("viscous_motor", fitted(1.0)), None, 1.01)
-    assert not kept.size_moved and kept.model.state.size == 1.0 and kept.size_probes == 0
-    assert not near.size_unsettled and not small.size_unsettled
-    # a profile that keeps falling: the search uses up its rounds still moving, and says so
-    class Falling(Profile):
-        references: list = []
-
-        def probe_size(self, model, name, factor, budget, reference=None, precise=False):
-            self.references.append(reference)
-            m = fitted(model.state.size * factor)
-            m.train_cost = 1000.0 + 1e4 / m.state.size
-            return m
-
-    start = fitted(1.0)
-    start.train_cost = 1000.0 + 1e4
-    restless = search_candidate(Falling(), CandidateFit("viscous_motor", start), None, 1.01)
-    assert restless.size_moved and restless.size_unsettled and restless.size_probes == 2 * SIZE_ROUNDS
-    # every probe of the walk, out to 1.1^128 times the start, is paid at the cost of simulating the search's origin
-    assert len(Falling.references) == 2 * SIZE_ROUNDS and all(r is start for r in Falling.references)
-    # a profile that keeps falling by less than one residual variance a round (0.01 noise variances, the residual
-    # variance here 2): chance, not a better fit; the search neither moves nor leaves its rival unsettled (measured:
-    # a hysteresis rival crept 8 rounds for 0.08 noise variances and made the right name tentative)
-    class Creeping(Profile):
-        def probe_size(self, model, name, factor, budget, reference=None, precise=False):
-            m = fitted(model.state.size * factor)
-            m.train_cost = 1000.0 - 0.1 * math.log(m.state.size)
-            return m
-
-    start = fitted(1.0)
-    start.train_cost = 1000.0
-    crept = search_candidate(Creeping(), CandidateFit("viscous_motor", start), None, 1.01)
-    assert not crept.size_moved and not crept.size_unsettled and crept.size_probes == 2
-    # a refit already at the noise (cost below 1.01 x (n - k) noise variances) has no room for a significant move
-    quiet = search_candidate(Profile(), CandidateFit("viscous_motor", fitted(7.5, 1e6, 10**6)), None, 1.01)
-    assert not quiet.size_moved and quiet.size_probes == 0
-    failed = search_candidate(Profile(), CandidateFit("viscous_motor", error="no fit"), None, 1.01)
-    assert failed.model is None and failed.size_probes == 0
 
 
 def test_the_confidence_level_is_the_noise_scatter_of_each_part_under_a_ceiling() -> None:
@@ -1211,8 +1124,8 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
                 progress: bool = False) -> list[object]:
             if fn is _without_task:
                 return [self.plugin.without(m, name, b) for _, m, name, b in tasks]
-            assert fn is _refit_task and not any(search for *_, search in tasks)
-            return [self.plugin.refit(m, t, b) for _, m, t, b, _ in tasks]
+            assert fn is _refit_task
+            return [self.plugin.refit(m, t, b) for _, m, t, b in tasks]
 
     def named_pair(gain: float) -> tuple[Plugin, _Search, Fitted]:
         """A search that has named hysteresis, then Stribeck; its final model."""
@@ -1343,7 +1256,8 @@ def test_a_name_chosen_against_a_stalled_model_is_tentative() -> None:
 def test_the_size_search_counts_chance_with_the_residuals_correlation() -> None:
     """``sizes._better``: a probe fits better only when its training cost falls by more than one residual variance
     times the size's inflation (``size_inflation``: its sandwich over its noise-only variance). On the stalled profile
-    of the test above the first check falls by 50 residual variances: a move with white residuals, chance with
+    of a size at 1/6 of its profile's minimum the first check falls by 50 residual variances: a move with white
+    residuals, chance with
     residuals correlated 100x (a model far from its log: measured on an actuator-lag log, a rival's search moved 8
     rounds for 10-280 residual variances a round). Through the FMU, the inflation is about 1 for the right candidate
     refitted to the noise and far above it for a wrong one that leaves the load's misfit (the other wrong one here,
@@ -1351,9 +1265,8 @@ def test_the_size_search_counts_chance_with_the_residuals_correlation() -> None:
     ``problem.COORD_STEP``)."""
     from types import SimpleNamespace
 
-    from ident.diagnosis.models import CandidateFit
     from ident.diagnosis.models.two_inertia import TwoInertiaPlugin
-    from ident.diagnosis.sizes import search_candidate
+    from ident.diagnosis.sizes import search_size
 
     class Stalled:
         def __init__(self, inflation: float):
@@ -1365,16 +1278,23 @@ def test_the_size_search_counts_chance_with_the_residuals_correlation() -> None:
             m.state = SimpleNamespace(size=size, sim=None)
             return m
 
-        def probe_size(self, model, name, factor, budget, reference=None, precise=False):
+        def probe_size(self, model, name, factor, budget, reference=None):
             return self.fitted(model.state.size * factor)
 
-        def size_inflation(self, model, name):
-            return self.inflation
+    def searched(inflation: float) -> tuple[Fitted, Fitted, int]:
+        probes, start, plugin = [], Stalled.fitted(1.0), Stalled(inflation)
 
-    white = search_candidate(Stalled(1.0), CandidateFit("viscous_motor", Stalled.fitted(1.0)), None, 1.01)
-    assert white.size_moved
-    correlated = search_candidate(Stalled(100.0), CandidateFit("viscous_motor", Stalled.fitted(1.0)), None, 1.01)
-    assert not correlated.size_moved and correlated.size_probes == 2
+        def run(fn, tasks):
+            probes.extend(tasks)
+            return [fn(t) for t in tasks]
+
+        found = search_size(run, plugin, start, "viscous_motor", None, inflation=lambda m: plugin.inflation)
+        return start, found.model, len(probes)
+
+    start, white, _ = searched(1.0)
+    assert white.train_cost < start.train_cost
+    start, correlated, probes = searched(100.0)
+    assert correlated is start and probes == 2
     log, _ = load(Case("single", 5102, "viscous_load", "medium", "default"), **SHORT)
     plugin = TwoInertiaPlugin(log)
     base = plugin.fit_base()

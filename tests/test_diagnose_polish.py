@@ -25,7 +25,7 @@ def test_the_polish_brings_a_displaced_model_back_to_its_optimum() -> None:
     assert np.all(steps > 0) and np.allclose(steps, np.minimum(SEARCH_STEP * sd, MAX_SEARCH_STEP))
 
     size = plugin.magnitude(final, NAME).value
-    held = plugin.probe_size(final, NAME, 0.9, DEFAULT_BUDGET, precise=True)
+    held = plugin.probe_size(final, NAME, 0.9, DEFAULT_BUDGET)
     assert abs(plugin.magnitude(held, NAME).value / size - 0.9) < 1e-9
     assert held.train_cost > final.train_cost + 1000.0   # far up the size's profile
     back, said = plugin.polish(held, DEFAULT_BUDGET)

@@ -1,5 +1,4 @@
-"""Does the log pin each named effect's size? The size search and its check, after the loop has named the effects;
-and the same search inside each candidate's refit (``search_candidate``), before the candidates are compared.
+"""Does the log pin each named effect's size? The size search and its check, after the loop has named the effects.
 
 Why: the named sizes come from free refits of every unknown at once, and the interval from the curvature at their
 optimum. An exact stick-slip model's cost can have a long, curved valley along an effect's size beside a steep local
@@ -44,7 +43,7 @@ from typing import Any, Callable
 from scipy import stats
 
 from ..common.units import after_number
-from .models import CandidateFit, Fitted, ModelPlugin
+from .models import Fitted, ModelPlugin
 from .result import NamedEffect
 
 #: a named size is held this much (relative) below and above its value, the rest refitted: the accuracy a user asks
@@ -62,11 +61,10 @@ Mapper = Callable[[Callable[[tuple], Any], list[tuple]], list[Any]]
 
 
 def probe_task(args: tuple) -> Fitted | None:
-    """One probe (``plugin.probe_size``, ``precise`` where asked), a top-level function for the workers; a probe
-    that fails is left out."""
-    plugin, model, name, factor, budget, reference, precise = args
+    """One probe (``plugin.probe_size``), a top-level function for the workers; a probe that fails is left out."""
+    plugin, model, name, factor, budget, reference = args
     try:
-        out = plugin.probe_size(model, name, factor, budget, reference, precise)
+        out = plugin.probe_size(model, name, factor, budget, reference)
     except Exception:  # noqa: BLE001 - a check, not a result: its failure must not lose the diagnosis
         return None
     if out is not None:
@@ -88,51 +86,43 @@ class SizeSearch:
 
 
 def search_size(run: Mapper, plugin: ModelPlugin, model: Fitted, name: str, budget: float | None,
-                min_gain: float = 1.0, inflation: Callable[[Fitted], float] | None = None,
-                separable: float = 0.0, precise: bool = False) -> SizeSearch:
+                inflation: Callable[[Fitted], float] | None = None, separable: float = 0.0) -> SizeSearch:
     """The size search of effect ``name`` from ``model`` (module docstring). ``run(fn, tasks)`` maps ``probe_task``
     over the workers; ``plugin`` is what the tasks carry to them; ``budget`` is a candidate's, each probe may use
     ``PROBE_BUDGETS`` of it, counted at the cost of simulating ``model`` (a probe far out along a size that makes
-    the model costlier to simulate pays for it: a search that walks to absurd sizes stays bounded in work). A move
-    that has lowered the training cost less than ``min_gain`` times since the last check ends the search there,
-    unchecked. ``inflation(model)``: the size's ``ModelPlugin.size_inflation`` there (None: 1). A check whose two
+    the model costlier to simulate pays for it: a search that walks to absurd sizes stays bounded in work).
+    ``inflation(model)``: the size's ``ModelPlugin.size_inflation`` there (None: 1). A check whose two
     probes both fit worse, but unequally, is followed by one probe at the vertex of the parabola through them
     (``vertex``); a move there that lowered the training cost by less than ``separable`` noise variances is a
-    refinement, not a doubt. ``precise``: the probes' refits as ``ModelPlugin.probe_size`` says (the final model's
-    search; a candidate's keeps the loop's refits)."""
-    cur, g, checked = model, None, model.train_cost
+    refinement, not a doubt."""
+    cur, g = model, None
     budget = None if budget is None else PROBE_BUDGETS * budget
     shift, stalled = 1.0, False   # the product of the vertex steps taken; whether a move left the check's bracket
     for r in range(SIZE_ROUNDS):
         factors = (1.0 - SIZE_PROBE, 1.0 + SIZE_PROBE) if g is None else (g, g * g)
-        probes = run(probe_task, [(plugin, cur, name, f, budget, model, precise) for f in factors])
+        probes = run(probe_task, [(plugin, cur, name, f, budget, model) for f in factors])
         better = _better(cur, probes, inflation)
         if not better and g is None:   # a check; its vertex only where a round is left to check again
-            step = vertex(cur, probes, min_gain, inflation) if r < SIZE_ROUNDS - 1 else None
-            probe = None if step is None else run(probe_task, [(plugin, cur, name, step, budget, model, precise)])[0]
+            step = vertex(cur, probes, inflation) if r < SIZE_ROUNDS - 1 else None
+            probe = None if step is None else run(probe_task, [(plugin, cur, name, step, budget, model)])[0]
             if probe is None or not _better(cur, [probe], inflation):
                 return _found(name, model, cur, list(zip(factors, probes)), shift, stalled, separable)
             cur, shift = probe, shift * step
-            if cur.train_cost * min_gain > checked:
-                return _found(name, model, cur, [(step, probe)], shift, stalled, separable)
-            checked = cur.train_cost
             continue
         if not better:
-            if cur.train_cost * min_gain > checked:
-                return _found(name, model, cur, list(zip(factors, probes)), shift, stalled, separable)
-            g, checked = None, cur.train_cost
+            g = None
             continue
         i = min(better)[1]
         cur, g, stalled = probes[i], factors[i] if g is None or i == 0 else g * g, True
     return _found(name, model, cur, [], shift, stalled, separable)
 
 
-def vertex(cur: Fitted, probes: list[Fitted | None], min_gain: float = 1.0,
-           inflation: Callable[[Fitted], float] | None = None) -> float | None:
+def vertex(cur: Fitted, probes: list[Fitted | None], inflation: Callable[[Fitted], float] | None = None
+           ) -> float | None:
     """The factor of the vertex of the parabola through the check's two probes (held ``SIZE_PROBE`` below and
     above, both fitting worse by d- and d+) and ``cur``: 1 + SIZE_PROBE (d- - d+) / (2 (d- + d+)), where the
     parabola predicts the training cost to fall by (d+ - d-)^2 / (8 (d- + d+)). None unless that fall is one a probe
-    must make to count (``_better``) and, in a candidate's search, a practically significant one (``min_gain``).
+    must make to count (``_better``).
 
     Why: a check that rises on both sides brackets the size's profile minimum, but does not put it at the point
     checked. The free refit of an exact stick-slip model stops short of it. Measured on the independent generator's
@@ -146,7 +136,7 @@ def vertex(cur: Fitted, probes: list[Fitted | None], min_gain: float = 1.0,
     if not (lo > 0 and hi > 0):
         return None
     fall = (hi - lo) ** 2 / (8.0 * (lo + hi))
-    if fall <= (min_gain - 1.0) * cur.train_cost or not _beyond_chance(cur, [fall], inflation)[0]:
+    if not _beyond_chance(cur, [fall], inflation)[0]:
         return None
     return 1.0 + SIZE_PROBE * (lo - hi) / (2.0 * (lo + hi))
 
@@ -203,43 +193,6 @@ def residual_variance(model: Fitted) -> float:
     weak viscous log moved 8 rounds for 0.08 noise variances in all (training gain 1.000001) and, unsettled, made
     the right name tentative."""
     return model.train_cost / max(model.n_train - model.k, 1)
-
-
-def at_noise(model: Fitted, min_gain: float) -> bool:
-    """True when no move could lower ``model``'s training cost ``min_gain`` times (> 1): the cost, in noise
-    variances, is already below ``min_gain`` times its expectation at the truth (n - k). Such a refit is not searched.
-    Measured: on a torque-step log whose model was at 0.9999x the noise, the candidates' searches spent 10-16 probes
-    each on gains of 0.004-0.05 %, 114 s of a 379 s diagnosis. A search is not stopped when it reaches the noise,
-    though: its small moves there still matter to the runner-up's held-back prediction (stopped there, a
-    motor-side viscous candidate predicted the held-back data significantly worse than the load-side one, and the
-    load side was named confidently; searched on, p = 0.47, and the name was tentative)."""
-    return min_gain > 1.0 and model.train_cost < min_gain * max(model.n_train - model.k, 1)
-
-
-def search_candidate(plugin: ModelPlugin, fit: CandidateFit, budget: float | None, min_gain: float
-                     ) -> CandidateFit:
-    """The size search inside one candidate's refit, on the worker that refitted it (probes in series).
-
-    Why: the same stall that leaves a named size wrong picks the wrong name. On a torque-step log with a hidden
-    motor-side viscous friction the viscous candidate's free refit stopped at 1/6 of the truth, its held-back cost 1.38x
-    lower than the model's; asymmetric friction, 12.7x lower, was named. Searched along its size, the viscous
-    candidate reached 9 % of the truth and 13.0x. A move that lowered the training cost less than ``min_gain`` times
-    (the acceptance rule's practical significance) is not checked again: a smaller gain cannot change which candidate
-    wins, and more probes would only spend time."""
-    if fit.model is None or fit.exhausted or at_noise(fit.model, min_gain):   # an unfinished fit: no budget left
-        return fit
-    count = [0]
-
-    def run(fn: Callable[[tuple], Any], tasks: list[tuple]) -> list[Any]:
-        out = [fn(t) for t in tasks]
-        count[0] += sum(p is not None for p in out)   # a model without probes (rigid) spends none
-        return out
-
-    out = search_size(run, plugin, fit.model, fit.name, budget, min_gain,
-                      lambda m: plugin.size_inflation(m, fit.name))
-    fit.size_moved, fit.size_unsettled = out.model is not fit.model, not out.checks
-    fit.model, fit.size_probes = out.model, count[0]
-    return fit
 
 
 def _moved(name: str, start: Fitted, end: Fitted) -> str:

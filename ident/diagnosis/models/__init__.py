@@ -56,10 +56,7 @@ class CandidateFit:
     ``exhausted``: the fit used up its evaluation budget before it converged; ``model`` is then the best point it
     simulated (None if none), judged like any other, and the candidate is not ruled out unless it is named;
     ``veto``: a reason of the model's own not to name it even if it scores (e.g. a parameter at its bound);
-    ``evaluations``: the simulations used, in whole training logs; ``start``: where the fit started;
-    ``size_probes``: the refits of the size search that followed (``ident.diagnosis.sizes.search_candidate``),
-    ``size_moved``: whether it moved the size, ``size_unsettled``: whether it used up its rounds still moving (the
-    refit may fit better still)."""
+    ``evaluations``: the simulations used, in whole training logs; ``start``: where the fit started."""
 
     name: str
     model: Fitted | None = None
@@ -68,9 +65,6 @@ class CandidateFit:
     veto: str | None = None
     evaluations: float = 0.0
     start: str = ""
-    size_probes: int = 0
-    size_moved: bool = False
-    size_unsettled: bool = False
 
 
 @dataclass
@@ -156,12 +150,12 @@ class ModelPlugin(ABC):
         """Effect ``name``'s magnitude in ``model``, with its interval."""
 
     def probe_size(self, model: Fitted, name: str, factor: float, budget: float | None,
-                   reference: Fitted | None = None, precise: bool = False) -> Fitted | None:
+                   reference: Fitted | None = None) -> Fitted | None:
         """``model`` refitted with effect ``name``'s size held at ``factor`` times its value and every other unknown
         free (a point of the size's profile: the engine's check that the log pins the size as closely as the local
-        interval says); ``budget`` as ``refit``, counted at the cost of simulating ``reference`` (None: of the
-        probe's start); ``precise``: refitted as ``polish`` refits (the final model's probes). None: the plug-in has
-        no such refit (the local interval stands)."""
+        interval says), as ``polish`` refits; ``budget`` as ``refit``, counted at the cost of simulating
+        ``reference`` (None: of the probe's start). None: the plug-in has no such refit (the local interval
+        stands)."""
         return None
 
     def size_inflation(self, model: Fitted, name: str) -> float:

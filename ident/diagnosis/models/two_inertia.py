@@ -550,7 +550,7 @@ class TwoInertiaPlugin(ModelPlugin):
         return Magnitude(mag, (lo, hi), EFFECTS[name].unit, values, _size_doubt(name, st.scales))
 
     def probe_size(self, model: Fitted, name: str, factor: float, budget: float | None,
-                   reference: Fitted | None = None, precise: bool = False) -> Fitted | None:
+                   reference: Fitted | None = None) -> Fitted | None:
         """The effect's linear coordinates (its size: the only one for every effect but the kinematic error, whose
         sine and cosine parts, of its 2/rev and where fitted its 4/rev, are held together, fixing its phases too) held
         at ``factor`` times their values; the other unknowns start where the model's covariance predicts them along
@@ -568,7 +568,7 @@ class TwoInertiaPlugin(ModelPlugin):
         head[free] += cov[np.ix_(free, held)] @ np.linalg.lstsq(cov[np.ix_(held, held)], delta, rcond=None)[0]
         return self._fit_from(model, model.effects, head, budget, pin=held,
                               unit=None if reference is None else reference.state.work,
-                              steps=self.search_steps(model) if precise else None)
+                              steps=self.search_steps(model))
 
     def polish(self, model: Fitted, budget: float | None) -> tuple[Fitted, str]:
         """``model`` refitted from its optimum, every unknown free, with the steps of ``search_steps``; kept where
