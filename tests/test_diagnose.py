@@ -475,8 +475,8 @@ def test_a_candidate_that_does_not_carry_over_is_refitted_in_its_other_shape() -
         pool = _Pool(results)
         search = _Search(Plugin(), pool, 5.0, 3, _Say(False))
         out = search._other_shapes(current, fits, 0)
-        assert [(t[1].metrics, t[2].candidate, t[4]) for t in pool.tasks] == [
-            ({"shape": "stribeck"}, "stribeck", True), ({"shape": "hysteresis"}, "hysteresis", True)]
+        assert [(t[1].metrics, t[2].candidate) for t in pool.tasks] == [
+            ({"shape": "stribeck"}, "stribeck"), ({"shape": "hysteresis"}, "hysteresis")]
         assert out[1:] == fits[1:] and (out[0] is fits[0]) == (not replaced)
         if replaced:
             assert out[0].model is better.model and out[0].exhausted and out[0].name == "stribeck"
@@ -493,7 +493,7 @@ def test_an_effect_is_adopted_in_the_shape_the_log_prefers_where_it_is_named() -
     """Where a step accepts an effect that has another shape (``_Search._adopt_shape``), it is refitted in it at
     once, and the loop goes on from that refit (converged, as an accepted model is) where it fits the training data
     better by more than the step resolves: the larger of the loop's threshold and the 1 % of the training cost
-    (``MIN_GAIN``) the candidate's size search leaves unresolved (on a long log the latter, on a short one the
+    (``MIN_GAIN``) a free refit may leave unresolved (on a long log the latter, on a short one the
     former). A refit within that, a worse one, or one that failed leaves the library's shape, and the notes say
     which. An effect without another shape is not refitted."""
     from ident.diagnosis import MIN_GAIN
@@ -1069,7 +1069,7 @@ def test_an_effect_named_first_gives_way_to_a_better_one_at_the_final_model() ->
     load predicts the held-back data 1.043x better and the pair reaches 0.998x the noise. A replacement that gains no
     more than ``MIN_GAIN`` leaves the names as they were; the last name is never exchanged; the refit without a name
     that backward elimination has just made is not made again; a model already within ``MIN_GAIN`` of the noise on
-    the held-back data is not exchanged; the replacements are free refits, not searched along their sizes."""
+    the held-back data is not exchanged."""
     from ident.diagnosis.engine import _departed, _refit_task, _Say, _Search, _without_task
     from ident.diagnosis.models import CandidateFit, Magnitude
     from ident.diagnosis.result import NamedEffect
@@ -1730,7 +1730,6 @@ def test_a_candidates_next_refit_carries_where_its_last_refit_ended() -> None:
     search._refits(current, tests, "step 0")
     search._refits(current, tests, "step 1")
     assert [task[2].carried for task in pool.tasks] == [{}, {}, {"viscous_motor size": 900.0}, {}]
-    assert all(task[4] for task in pool.tasks)   # a step's candidates are searched along their sizes
     assert not tests[0].carried
 
 
