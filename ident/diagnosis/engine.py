@@ -44,7 +44,7 @@ model: the model is a plug-in (``ident.diagnosis.models``: the two-inertia FMU, 
    whose removal does not worsen the held-back prediction significantly only stood in for later ones, and goes.
    Then **exchange**: each named effect but the last was chosen against a model still missing the effects named
    after it, where a stand-in can fit best; the final model without it is refitted, the candidates that pass the
-   screen there are refitted from it (free refits, not searched along their sizes: ``_exchanged``), and the best
+   screen there are refitted from it (``_exchanged``), and the best
    takes its place when it passes the acceptance rule against the final model (then backward elimination again);
    not when the final model predicts the held-back data within ``MIN_GAIN`` of the noise already (no replacement
    could pass the rule there but by chance). Measured on a two-effect log of the independent generator (viscous load
