@@ -420,3 +420,33 @@ def test_a_script_without_a_main_guard_is_told_what_to_do(tmp_path) -> None:
     assert f"The workers are new processes that import {script}, and it starts" in lines["SCRIPT"]
     for line in lines.values():
         assert 'put that work under `if __name__ == "__main__":`, or pass workers=0' in line
+
+
+def test_a_killed_processs_unpacked_fmu_is_removed_by_the_next_plant(tmp_path, monkeypatch) -> None:
+    """A process killed before ``atexit`` runs (SIGKILL here; a script's default SIGTERM does the same) leaves the
+    folder its plant unpacked the FMU into; the next plant on the host removes it (``remove_orphaned_fmus``) and keeps
+    those of processes still alive, its own included."""
+    import tempfile
+
+    from ident import Plant
+    from ident.model.plant import remove_orphaned_fmus
+
+    code = "import time; from ident import Plant; p = Plant(); print('ready', flush=True); time.sleep(120)"
+    child = subprocess.Popen([sys.executable, "-c", code], env={**os.environ, "TMPDIR": str(tmp_path)},
+                             stdout=subprocess.PIPE)
+    try:
+        assert child.stdout.readline().strip() == b"ready"
+        orphan, = tmp_path.glob("hdrive-fmu-*")
+        assert orphan.name.startswith(f"hdrive-fmu-{child.pid}-")
+        assert remove_orphaned_fmus(tmp_path) == []   # its process is alive: kept
+    finally:
+        child.kill()
+        child.wait()
+    assert orphan.is_dir()   # killed outright: nothing removed it
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    with Plant():
+        kept, = tmp_path.glob("hdrive-fmu-*")
+        assert not orphan.exists() and kept.name.startswith(f"hdrive-fmu-{os.getpid()}-")
+        with Plant():   # a second plant of a live process keeps the first one's folder
+            assert kept.is_dir() and len(list(tmp_path.glob("hdrive-fmu-*"))) == 2
+    assert not list(tmp_path.glob("hdrive-fmu-*"))
