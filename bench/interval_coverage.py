@@ -3,9 +3,9 @@
 One true trajectory of the independent generator (``tests/reference/``: a single-effect case of the matrix, as
 ``bench/diagnose.py`` makes it), its load-angle noise drawn again for each draw (seeded, the generator's own noise
 level and offset), each draw diagnosed by ``ident.diagnose`` as a user's log would be. Per draw: what was named,
-how sure, each size with its interval against the generator's truth (where its shape is the library's) and the
-z-score (error over the interval's half width / 1.96). The summary: the right effect's hit rate, the coverage of
-its intervals, and the largest |z|.
+how sure, each size with its interval against the generator's truth (where its shape is the library's). The summary:
+the right effect's hit rate, the coverage of its intervals and the largest |z| (``diagnosis_matrix.coverage``, as
+``bench/diagnose.py`` reports them), each draw's z.
 
     python3 bench/interval_coverage.py SEED:EFFECT:MAGNITUDE:EXCITATION [--draws 1,2,3,4,5] [--duration 10]
                                        [--rate 5000] [--workers N] [--out bench/results/interval_coverage.json]
@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from tests.diagnosis_matrix import Case, generate, score  # noqa: E402
+from tests.diagnosis_matrix import Case, coverage, generate, interval_z, score  # noqa: E402
 from tests.ident_support import read_back  # noqa: E402
 
 
@@ -37,11 +37,10 @@ def redrawn(g0, draw: int):
 def summary(case: Case, rows: list[dict]) -> dict:
     """Hit rate of the hidden effect, coverage of its intervals (where the truth is in the library's terms), max |z|."""
     sizes = [m for r in rows for m in r["magnitudes"] if m["effect"] == case.effect and m["truth"] is not None]
-    z = [(m["magnitude"] - m["truth"]) / max((m["ci95"][1] - m["ci95"][0]) / (2 * 1.96), 1e-300) for m in sizes]
-    hold = [m["ci95"][0] <= m["truth"] <= m["ci95"][1] for m in sizes]
+    held = coverage(sizes)
     return {"case": case.stem, "draws": len(rows), "named_right": sum(case.effect in r["named"] for r in rows),
-            "confident_right": sum(case.effect in r["confident"] for r in rows), "intervals": len(sizes),
-            "hold": sum(hold), "max_abs_z": max((abs(x) for x in z), default=None), "z": z,
+            "confident_right": sum(case.effect in r["confident"] for r in rows), "intervals": held["n"],
+            "hold": held["covered"], "max_abs_z": held["max_abs_z"], "z": [interval_z(m) for m in sizes],
             "errors_pct": [100 * (m["magnitude"] / m["truth"] - 1) for m in sizes],
             "elapsed_s": [r["elapsed_s"] for r in rows]}
 
