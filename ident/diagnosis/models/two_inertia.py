@@ -531,12 +531,10 @@ class TwoInertiaPlugin(ModelPlugin):
     # ---------------------------------------------------------------------------------------- naming ----------
 
     def magnitude(self, model: Fitted, name: str) -> Magnitude:
-        st = model.state
+        st, cov = model.state, self._cov(model)
         if name == FLEXIBILITY:
-            cov = self._cov(model)
             K, sd = st.params.K_s, math.sqrt(max(cov[0, 0], 0.0))
             return Magnitude(K, (K * math.exp(-Z95 * sd), K * math.exp(Z95 * sd)), "N.m/rad", {"K_s": K})
-        cov = self._cov(model)
         idx = _effect_indices(model, name)
         coords = [c for c in _layout(model) if c.effect == name]
         x = st.theta[idx]
@@ -581,7 +579,8 @@ class TwoInertiaPlugin(ModelPlugin):
         against a 95 % interval of +-0.17 %, three intervals in ten holding the truth; refitted free from the final
         model held 10 % smaller or larger, micro-steps stayed there (+12000 noise variances), these steps came back
         to one point (to 2e-5 of the size) 59 noise variances below the final model. Polished, the size scattered
-        0.14 % (mean +0.02 %) and seven intervals in ten held the truth: still narrower than the scatter."""
+        0.14 % (mean +0.02 %) and seven intervals in ten held the truth: still narrower than the scatter, which the
+        effects' finite-difference steps then explained (below the simulation's round-off: ``problem.COORD_STEP``)."""
         if model.state.rigid or not model.effects or model.effects == (FLEXIBILITY,):
             return model, ""
         st = model.state
