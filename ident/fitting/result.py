@@ -14,6 +14,9 @@ from ..common.plotting import figure, save
 from ..model.params import DriveParams
 
 NAMES = ("K_star", "J_l_star", "f_l_star")
+#: the two-inertia fit's unknowns: the log of each of ``NAMES`` and the initial deflection (a fraction of the static
+#: band); a diagnosis's effect coordinates follow them
+BASE_UNKNOWNS = len(NAMES) + 1
 BOUNDS = {"K_star": (1e3, 1e9), "J_l_star": (10.0, 1e6), "f_l_star": (1e-4, 100.0)}
 Z95 = 1.959963984540054
 AT_BOUND = 0.05  # a log-parameter this close to its bound leans on the box (IPOPT's barrier keeps it a few % off)

@@ -15,6 +15,7 @@ import numpy as np
 
 from ...fitting.identify import EvaluationBudget, OutputError
 from ...fitting.logs import DriveLog
+from ...fitting.result import BASE_UNKNOWNS
 from ...model.params import DriveParams
 from ...model.pool import pooled_plant
 from .coordinates import Coord, LogScales, coordinates, fmu_values
@@ -129,7 +130,7 @@ class ModelProblem(OutputError):
     def values(self, theta: np.ndarray) -> dict[str, float]:
         """FMU effect parameters at ``theta``."""
         out = dict(self.fixed)
-        i = 4
+        i = BASE_UNKNOWNS
         for name, coords in self.blocks:
             out.update(fmu_values(name, coords, theta[i:i + len(coords)]))
             i += len(coords)
@@ -154,10 +155,10 @@ class ModelProblem(OutputError):
         """Steps the continuation's scan tries on the effects' coordinates: each effect's jointly, a product grid
         of x1/3 .. x3 for log coordinates and +-15 %, +-30 % of the value for the others."""
         steps = []
-        i = 4
+        i = BASE_UNKNOWNS
         for _, coords in self.blocks:
             idx = list(range(i, i + len(coords)))
-            axes = [(0.0, -1.1, -0.55, 0.55, 1.1) if self.coords[j - 4].log
+            axes = [(0.0, -1.1, -0.55, 0.55, 1.1) if self.coords[j - BASE_UNKNOWNS].log
                     else tuple(theta[j] * f for f in (0.0, -0.3, -0.15, 0.15, 0.3)) for j in idx]
             for combo in _product(axes):
                 if any(combo):
@@ -191,7 +192,7 @@ class ModelProblem(OutputError):
     def fd_step(self, i: int) -> float:
         """``OutputError.fd_step``, and at least ``COORD_STEP`` in an effect's coordinates."""
         h = super().fd_step(i)
-        return max(h, COORD_STEP) if i >= 4 else h
+        return max(h, COORD_STEP) if i >= BASE_UNKNOWNS else h
 
     def load_rows(self) -> slice:
         """The load sensor's rows of the residual vector."""

@@ -55,7 +55,7 @@ from ...fitting.identify import (
 )
 from ...fitting.logs import DriveLog, LogError
 from ...fitting.noise import at_noise_level, residual_noise_std
-from ...fitting.result import larger_variances
+from ...fitting.result import BASE_UNKNOWNS, larger_variances
 from ...model.effects import EFFECTS
 from ...model.params import DriveParams
 from .. import CONFIDENT_ALPHA, CONFIDENT_OVER_NOISE, MIN_GAIN, above_level
@@ -427,10 +427,10 @@ class TwoInertiaPlugin(ModelPlugin):
         x = self._start(model, test, sens)
         coords = coordinates(test.candidate, st.scales, sens.get(test.candidate))
         x = _reflected(x, coords)
-        rows = [np.concatenate([st.theta[4:], x])]
+        rows = [np.concatenate([st.theta[BASE_UNKNOWNS:], x])]
         for point in grid(test.candidate, st.scales):  # the grid's other points as further starts
             alt = np.array([point.get(c.name, xi) for c, xi in zip(coords, x)])
-            rows.append(np.concatenate([st.theta[4:], alt]))
+            rows.append(np.concatenate([st.theta[BASE_UNKNOWNS:], alt]))
         problem, theta, _, _, _ = fit_pipeline(truncate_log(self.full, self.stop), st.base,
                                                ModelProblem.maker(_fmu_effects(effects), st.scales, meter, sens,
                                                                   st.fixed),
@@ -454,7 +454,7 @@ class TwoInertiaPlugin(ModelPlugin):
                 return replace(model, held_cost=math.inf, train_cost=math.inf)
             return self._rigid()
         effects = tuple(e for e in model.effects if e != name)
-        keep = [*range(4), *(4 + i for i, c in enumerate(_layout(model)) if c.effect != name)]
+        keep = [*range(BASE_UNKNOWNS), *(BASE_UNKNOWNS + i for i, c in enumerate(_layout(model)) if c.effect != name)]
         return self._fit_from(model, effects, st.theta[keep], budget, max_iter=REFIT_ITER, clip=False)
 
     def _fit_from(self, model: Fitted, effects: tuple[str, ...], head: np.ndarray, budget: float | None, *,
@@ -507,7 +507,7 @@ class TwoInertiaPlugin(ModelPlugin):
             problem, theta, _, _, _ = fit_pipeline(truncate_log(self.full, self.stop), st.base,
                                                    ModelProblem.maker(_fmu_effects(model.effects), st.scales,
                                                                       meter, st.sens, st.fixed),
-                                                   st.theta[4:][None, :])
+                                                   st.theta[BASE_UNKNOWNS:][None, :])
             problem.close()
         except BudgetExceeded:
             return self.resimulated(model), (f"identifying {' + '.join(model.effects)} from scratch used up its "
@@ -624,7 +624,7 @@ class TwoInertiaPlugin(ModelPlugin):
         """The Wald statistic of "both halves have the same K*, J_l*, f_l* and effect coordinates" and its degrees
         of freedom (the initial deflection is left out: it belongs to the log's start, which the second half does
         not see). The halves' data are independent, so the difference's covariance is the sum of theirs."""
-        keep = [0, 1, 2, *range(4, first.state.theta.size)]
+        keep = [*range(BASE_UNKNOWNS - 1), *range(BASE_UNKNOWNS, first.state.theta.size)]   # not the deflection
         d = first.state.theta[keep] - second.state.theta[keep]
         V = (self._cov(first) + self._cov(second))[np.ix_(keep, keep)]
         return float(d @ np.linalg.pinv(V, rcond=1e-12) @ d), len(keep)
@@ -633,7 +633,8 @@ class TwoInertiaPlugin(ModelPlugin):
         if model.state.rigid:
             return {}
         theta = model.state.theta
-        return {c.name: c.value(float(theta[4 + i])) for i, c in enumerate(_layout(model)) if c.effect == name}
+        return {c.name: c.value(float(theta[BASE_UNKNOWNS + i])) for i, c in enumerate(_layout(model))
+                if c.effect == name}
 
     def refit_cost(self, name: str) -> float:
         """``SIMULATION_S`` of the candidate's effect; flexibility (an identification from scratch) and any effect
@@ -695,7 +696,7 @@ class TwoInertiaPlugin(ModelPlugin):
         head = st.theta.copy()
         for i, c in enumerate(_layout(model)):
             if c.effect == name:
-                head[4 + i] += sign * shape.shifts.get(c.name, 0.0)
+                head[BASE_UNKNOWNS + i] += sign * shape.shifts.get(c.name, 0.0)
         theta, unfinished = self._refitted(rival, model.effects, head, budget)
         out = self.evaluate(model.effects, theta, st.base, st.scales, sens=st.sens, fixed=fixed)
         size = self.magnitude(out, name)
@@ -926,12 +927,12 @@ def _toggled(fixed: dict[str, float], shape: Shape, scales: LogScales | None) ->
 
 def _effect_indices(model: Fitted, name: str) -> list[int]:
     """Indices in the unknowns of all of effect ``name``'s coordinates."""
-    return [4 + i for i, c in enumerate(_layout(model)) if c.effect == name]
+    return [BASE_UNKNOWNS + i for i, c in enumerate(_layout(model)) if c.effect == name]
 
 
 def _size_indices(model: Fitted, name: str) -> list[int]:
     """Indices in the unknowns of effect ``name``'s linear coordinates: its size, which ``probe_size`` holds."""
-    return [4 + i for i, c in enumerate(_layout(model)) if c.effect == name and not c.log]
+    return [BASE_UNKNOWNS + i for i, c in enumerate(_layout(model)) if c.effect == name and not c.log]
 
 
 def _fmu_effects(effects: tuple[str, ...]) -> tuple[str, ...]:
