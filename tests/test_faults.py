@@ -165,6 +165,25 @@ def test_a_second_run_at_once_does_not_warn_about_the_dashboards_port() -> None:
     assert not [w for w in caught if "already in use" in str(w.message)], [str(w.message) for w in caught]
 
 
+def _log_closing_heartbeat_and_a_worker_error(x: int) -> int:
+    import logging
+
+    log = logging.getLogger("distributed.worker")
+    log.error(batch._CLOSING_HEARTBEAT + ".")
+    log.error("a worker error the user must see (%d)", x)
+    return x
+
+
+def test_a_workers_closing_heartbeat_is_quiet_and_its_other_errors_are_not(capfd) -> None:
+    """A local worker whose heartbeat finds the scheduler gone (this process closing its cluster; Dask's race,
+    seen as a traceback on stderr after a diagnosis that ended normally) says nothing; its other errors still
+    reach stderr."""
+    assert batch.run_batch(_log_closing_heartbeat_and_a_worker_error, [7], workers=1) == [7]
+    err = capfd.readouterr().err
+    assert "a worker error the user must see (7)" in err
+    assert batch._CLOSING_HEARTBEAT not in err
+
+
 def test_a_cluster_that_loses_its_workers_is_named(monkeypatch) -> None:
     """An external cluster whose last worker goes away while tasks are pending: a named error, not a hang."""
     from dask.distributed import LocalCluster
