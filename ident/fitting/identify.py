@@ -80,6 +80,7 @@ __all__ = [
     "fit_ipopt",
     "fit_pipeline",
     "identify",
+    "lower_deflection_basin",
     "noise_std",
     "residual_noise_std",
     "standstill_runs",
@@ -1198,8 +1199,8 @@ def _other_basin(problem: OutputError, tracks: list[Track], stages: list[dict[st
     J_l*, f_l* were 3.3 bound sigmas off; the misfit (1.011x the noise) was inside the noise's own spread, so no
     residual test could have told. Costs ~ 60 simulations of the log."""
     best = tracks[0]
-    theta = _d0_scan(problem, best.theta, 10, refine=True)
-    if problem.cost(theta) >= best.cost - 1.0:
+    theta = lower_deflection_basin(problem, best.theta, best.cost)
+    if theta is None:
         return tracks
     say(progress, f"  initial deflection: a lower basin at {theta[3]:+.3f} band (was {best.theta[3]:+.3f}); "
         "refitting from it")
@@ -1207,6 +1208,21 @@ def _other_basin(problem: OutputError, tracks: list[Track], stages: list[dict[st
     tracks, _ = _settle(problem, tracks + [Track(theta, info=info)])
     stages.append(_stage_row(problem, tracks[0], stages[-1]["window_s"], basin_d0=float(theta[3])))
     return tracks
+
+
+#: initial deflections scanned across the static band at an optimum (``lower_deflection_basin``)
+D0_BASIN_POINTS = 10
+
+
+def lower_deflection_basin(problem: OutputError, theta: np.ndarray, cost: float | None = None) -> np.ndarray | None:
+    """``theta`` with its initial deflection (``theta[3]``, in static bands) moved to the lowest basin of the cost
+    along it, every other unknown held (``_d0_scan`` over ``D0_BASIN_POINTS``, each basin refined), when that basin
+    is lower than ``theta``'s ``cost`` (its sum of squared residuals, simulated when not given) by more than one noise
+    variance; else None. The cost is multi-modal in the initial deflection and no fit crosses from one basin into
+    another: a refit from here stays in the basin it starts in."""
+    here = problem.cost(theta) if cost is None else cost
+    at = _d0_scan(problem, theta, D0_BASIN_POINTS, refine=True)
+    return at if problem.cost(at) < here - 1.0 else None
 
 
 def _d0_scan(problem: OutputError, theta: np.ndarray, points: int, refine: bool = False) -> np.ndarray:

@@ -51,6 +51,7 @@ from ...fitting.identify import (
     fit_ipopt,
     fit_pipeline,
     identify,
+    lower_deflection_basin,
     search_steps_of,
 )
 from ...fitting.logs import DriveLog, LogError
@@ -496,9 +497,15 @@ class TwoInertiaPlugin(ModelPlugin):
     def converge(self, model: Fitted, budget: float | None, unfinished: bool = False) -> tuple[Fitted, str]:
         """Identified from scratch with its effects when the accepted model leans on a parameter bound (it was
         fitted from a model that could not fit the log inside the physical range); else refitted on from where it
-        stopped when its refit used up its budget first (``unfinished``); else as refitted."""
+        stopped when its refit used up its budget first (``unfinished``); else as refitted. Then its initial
+        deflection's basins are checked (``_basin_checked``)."""
         if model.state.rigid or model.effects == (FLEXIBILITY,):
             return self.resimulated(model), ""
+        out, how = self._converged(model, budget, unfinished)
+        return self._basin_checked(out, how, budget)
+
+    def _converged(self, model: Fitted, budget: float | None, unfinished: bool) -> tuple[Fitted, str]:
+        """``converge`` before the basins' check."""
         if not at_bound(model.state.theta):
             return self._continued(model, budget) if unfinished else (self.resimulated(model), "")
         st = model.state
@@ -518,6 +525,33 @@ class TwoInertiaPlugin(ModelPlugin):
             return fresh, (f"identified from scratch with {' + '.join(model.effects)}: training cost "
                            f"{model.train_cost:.6g} -> {fresh.train_cost:.6g}")
         return self.resimulated(model), ""
+
+    def _basin_checked(self, model: Fitted, how: str, budget: float | None) -> tuple[Fitted, str]:
+        """``model`` refitted from the lowest basin of its initial deflection where that is lower by more than one
+        noise variance (``identify.lower_deflection_basin``, within ``budget``) and the refit fits the training data
+        better; ``how`` with a sentence saying so. Why: the identifier checks the basins at the base model, and every
+        refit stays in the basin it starts in, but an effect moves them. Measured on an independent default-design log
+        with a strong exponential Stribeck friction (seed 7722, 8 s at 4 kHz): the base model's basin, -0.09 band,
+        stayed the model's after Stribeck was accepted, while with Stribeck the basin at -0.89 band (the truth: -0.895)
+        was 7,800 noise variances lower; the misfit of the log's first 0.15 s left the model at 1.2x the noise, every
+        name tentative, and a stand-in (asymmetric friction) was named for it."""
+        st = model.state
+        problem = st.problem(self.full, model.effects, self.stop, self.sigma, central=False,
+                             budget=EvaluationBudget(None if budget is None else budget * self.stop))
+        try:
+            head = lower_deflection_basin(problem, st.theta)
+        except BudgetExceeded:
+            head = None
+        finally:
+            problem.close()
+        if head is None:
+            return model, how
+        moved = self._fit_from(model, model.effects, head, budget)
+        if not moved.train_cost < model.train_cost:
+            return model, how
+        note = (f"its initial deflection has a lower basin at {head[3]:+.3f} static band (was {st.theta[3]:+.3f}); "
+                f"refitted from there: training cost {model.train_cost:.6g} -> {moved.train_cost:.6g}")
+        return moved, "; ".join(x for x in (how, note) if x)
 
     def _continued(self, model: Fitted, budget: float | None) -> tuple[Fitted, str]:
         """``model`` refitted on from its point, within ``budget``: the next screen is a score test at the current
