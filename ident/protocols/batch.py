@@ -186,6 +186,8 @@ _CLOSING_HEARTBEAT = "Failed to communicate with scheduler during heartbeat"
 
 
 class _ClosingHeartbeat(logging.Filter):
+    """Drops ``_CLOSING_HEARTBEAT`` records, lets every other one through."""
+
     def filter(self, record: logging.LogRecord) -> bool:
         return not str(record.msg).startswith(_CLOSING_HEARTBEAT)
 
@@ -261,7 +263,6 @@ def _shut_down(client: Any, cluster: Any, interrupted: bool) -> None:
     """Shut the client and the local cluster down. When the batch was interrupted (Ctrl-C, SIGTERM, an error), the
     worker processes are killed first, so that the shutdown takes a moment rather than waiting for running tasks;
     Dask's own complaints about that are the expected end of an interrupted batch, not news for the user."""
-
     if interrupted:
         for child in multiprocessing.active_children():
             child.kill()
