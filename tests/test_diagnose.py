@@ -1695,6 +1695,25 @@ def test_a_refit_that_did_not_test_its_candidate_starts_again_from_its_last_fit_
     assert np.allclose(start, [size.hi, -1.0])
 
 
+def test_a_retry_starts_where_its_scaled_starts_go_downhill_and_is_not_run_where_none_does() -> None:
+    """``two_inertia._start_head``: the first run starts from its cheapest head whatever it costs (the head at
+    fraction 0 is the current model); a retry starts from its cheapest head only when that one is below the current
+    model, else it is not run (IPOPT from the current model is the first run, which ended there). Measured on an
+    actuator-lag log: retries from uphill starts used up three candidates' budgets climbing back to the current
+    model."""
+    from ident.diagnosis.models.two_inertia import STEP_FRACTIONS, _start_head
+
+    zero = 1 + STEP_FRACTIONS.index(0.0)
+    uphill = [9.0, 9.0, 7.0, 6.0, 5.5, 5.0]   # the heads' costs: falling towards the current model (5.0)
+    assert uphill[zero] == 5.0 and _start_head(uphill, retry=False) == zero
+    assert _start_head(uphill, retry=True) is None
+    level = [5.0] * len(uphill)   # a size that changes nothing: no head is below the current model
+    assert _start_head(level, retry=True) is None
+    dip = list(uphill)
+    dip[zero - 1] = 4.9   # a small step along the retry's direction goes downhill: run from there
+    assert _start_head(dip, retry=True) == zero - 1 == _start_head(dip, retry=False)
+
+
 def test_a_refit_tests_its_candidate_when_it_removes_at_least_its_degrees_of_freedom() -> None:
     """``ScoreTest.tested_by``: the one rule the loop (training cost) and the two-inertia refit's retry (its
     problem's cost) share; a fall below the candidate's degrees of freedom (the chi-square mean of as many

@@ -979,7 +979,8 @@ def _untested(current: Fitted, fits: list[CandidateFit], passing: list[ScoreTest
       after Stribeck, at 1.96x the noise, every refit of step 1 ended within 0.02 noise variances of its start,
       viscous motor friction among them (score 1141), and each read as tested and rejected. The two-inertia plug-in
       now starts such a refit again from the candidate's last fit and from the step reflected into its bounds
-      (``two_inertia._retry_starts``; the loop passes the last fit on, ``ScoreTest.carried``): what stays untested
+      (``two_inertia._retry_starts``; the loop passes the last fit on, ``ScoreTest.carried``; not where every start
+      along it, scaled back, is uphill from the current model, ``two_inertia._start_head``): what stays untested
       after that is listed here.
     * The refit fits the training part more than ``MIN_GAIN`` better and predicts the held-back part more than
       ``MIN_GAIN`` worse (``_carries_over``): what it fitted does not carry over, so the held-back part, which
@@ -998,9 +999,11 @@ def _untested(current: Fitted, fits: list[CandidateFit], passing: list[ScoreTest
             continue
         fall = current.train_cost - f.model.train_cost
         if t.screened and not t.tested_by(fall):
-            out[t.candidate] = (f"its refit removed {fall:.3g} noise variances of the training cost, fewer than its "
-                                f"{t.df} degree(s) of freedom remove by chance, where the screen's step predicted "
-                                f"{t.statistic:.4g}: the refit did not test it")
+            moved = (f"removed {fall:.3g} noise variances of the training cost, fewer than its {t.df} degree(s) of "
+                     "freedom remove by chance" if fall >= 0 else f"ended {-fall:.3g} noise variances above the "
+                     f"current model's training cost ({t.df} degree(s) of freedom remove {t.df} by chance)")
+            out[t.candidate] = (f"its refit {moved}, where the screen's step predicted {t.statistic:.4g}: the refit did "
+                                "not test it")
         elif not _carries_over(current, f.model):
             out[t.candidate] = (f"its refit lowers the training cost {current.train_cost / f.model.train_cost:.4g}x "
                                 f"and raises the held-back cost {f.model.held_cost / current.held_cost:.4g}x (it "
