@@ -407,9 +407,11 @@ def test_a_size_that_depends_on_the_effects_shape_is_tentative_and_its_interval_
 def test_the_shape_check_refits_each_named_effect_that_has_another_shape() -> None:
     """The loop's shape check (in ``_Search._final_checks``, one batch with the constancy check) refits, on the
     workers, each named effect that has another shape, on a final model at the noise and on one above it (a misfit
-    there may be the shape's); a refit that failed is said in the notes and the check left undone."""
+    there may be the shape's); a refit that failed is said in the notes and the check left undone. An effect its
+    step refitted in its other shape from the final model itself (``_adopt_shape``) is not refitted again."""
     from ident.diagnosis import CONFIDENT_OVER_NOISE
     from ident.diagnosis.engine import _Say, _Search
+    from ident.diagnosis.models import ShapeFit
     from ident.diagnosis.result import NamedEffect
 
     class Plugin(_OverInMetrics):
@@ -425,6 +427,17 @@ def test_the_shape_check_refits_each_named_effect_that_has_another_shape() -> No
         assert [t[1][2] for t in pool.tasks] == ([0, 1] if halves else []) + ["stribeck"], (over, pool.tasks)
         assert any("could not be refitted in its other shape (RuntimeError: no)" in n for n in search.notes)
         assert search.shapes == {} and bool(search.constancy) == halves
+    # where the step that named it refitted it in its other shape from this very model, that refit is the check's
+    final = Fitted(("hysteresis", "stribeck"), 100.0, 100.0, np.ones(10), 100, 8,
+                   {"over": (CONFIDENT_OVER_NOISE * 1.5, 1.0)})
+    rival = ShapeFit(replace(final, train_cost=90.0), 1.4, (1.3, 1.5), "another decay")
+    for tried_at, again in ((final, False), (replace(final), True)):
+        pool = _Pool([rival])
+        search = _Search(Plugin(), pool, 5.0, 3, _Say(False))
+        search.named = [NamedEffect(n, 1.0, (0.9, 1.1), "", "", None, None) for n in ("hysteresis", "stribeck")]
+        search.shape_tried = {"stribeck": (tried_at, rival)}
+        search._final_checks(final)
+        assert [t[1][2] for t in pool.tasks] == (["stribeck"] if again else []) and search.shapes == {"stribeck": rival}
 
 
 def test_a_candidate_that_does_not_carry_over_is_refitted_in_its_other_shape() -> None:
@@ -794,6 +807,7 @@ def test_the_final_size_search_runs_only_where_a_name_can_be_confident() -> None
     searched once (the earlier ones were searched again, though nothing had moved)."""
     from ident.diagnosis import CONFIDENT_OVER_NOISE
     from ident.diagnosis.engine import _Say, _Search
+    from ident.diagnosis.models import ShapeFit
     from ident.diagnosis.result import NamedEffect
 
     class Plugin(_OverInMetrics):
