@@ -469,3 +469,30 @@ def test_a_killed_processs_unpacked_fmu_is_removed_by_the_next_plant(tmp_path, m
         with Plant():   # a second plant of a live process keeps the first one's folder
             assert kept.is_dir() and len(list(tmp_path.glob("hdrive-fmu-*"))) == 2
     assert not list(tmp_path.glob("hdrive-fmu-*"))
+
+
+def test_a_killed_processs_worker_folder_is_removed_by_the_next_pool(tmp_path, monkeypatch) -> None:
+    """A process killed before it removed its local workers' folder (a script calling ``ident.diagnose`` stopped by
+    SIGTERM leaves one, its workers' unpacked FMUs inside) has it removed by the next pool that starts local workers
+    on the host (``ident.common.scratch``); the folders of live processes, its own included, and those of another
+    host stay."""
+    import tempfile
+
+    from ident.common.scratch import host_tag
+    from ident.protocols.batch import WorkerPool
+
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    orphan = tmp_path / f"hdrive-workers-{gone.pid}-{host_tag()}-abc"
+    (orphan / "hdrive-fmu-1-x").mkdir(parents=True)
+    alive = tmp_path / f"hdrive-workers-{os.getpid()}-{host_tag()}-def"
+    elsewhere = tmp_path / f"hdrive-workers-{gone.pid}-{'0' * 8 if host_tag() != '0' * 8 else '1' * 8}-ghi"
+    alive.mkdir()
+    elsewhere.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    with WorkerPool(1) as pool:
+        assert pool.map(abs, [-2]) == [2]
+        assert not orphan.exists() and alive.is_dir() and elsewhere.is_dir()
+        ours = [p for p in tmp_path.glob(f"hdrive-workers-{os.getpid()}-*") if p != alive]
+        assert len(ours) == 1 and ours[0].is_dir()
+    assert not ours[0].exists()

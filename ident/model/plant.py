@@ -8,11 +8,7 @@ from __future__ import annotations
 
 import atexit
 import ctypes
-import hashlib
-import os
 import shutil
-import socket
-import tempfile
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +20,7 @@ import pandas as pd
 from fmu_build import variables as V
 from fmu_build.build import default_fmu_path
 
+from ..common.scratch import owned_dir, remove_orphaned
 from ..common.workdir import kept_working_directory
 from .params import FIELD_NAMES, DriveParams, ParameterError, check_parameter
 
@@ -36,7 +33,7 @@ _UNPACKED: set[str] = set()   # folders of unpacked FMUs still in use: removed a
 _READING = threading.Lock()
 
 
-#: an unpacked FMU's folder: this prefix, then the process id and the host's tag (``_host_tag``), then mkdtemp's suffix
+#: an unpacked FMU's folder: this prefix, then the process id and the host's tag, then mkdtemp's suffix (``owned_dir``)
 _UNPACK_PREFIX = "hdrive-fmu-"
 
 
@@ -47,39 +44,10 @@ def remove_unpacked_fmus() -> None:
         shutil.rmtree(folder, ignore_errors=True)
 
 
-def _host_tag() -> str:
-    """8 hex digits of this host's name: process ids are only compared on the host (and container) that made them."""
-    return hashlib.blake2b(socket.gethostname().encode(), digest_size=4).hexdigest()
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)   # signal 0: only asks whether the process exists
-    except ProcessLookupError:
-        return False
-    except PermissionError:   # another user's live process
-        return True
-    return True
-
-
 def remove_orphaned_fmus(root: str | Path | None = None) -> list[Path]:
     """Remove the folders of unpacked FMUs (under ``root``, default the temporary folder) whose process is gone, made
-    on this host; return them. Each plant calls it before unpacking its own.
-
-    Why: a process removes its folders at exit (``remove_unpacked_fmus``), but one killed before ``atexit`` runs keeps
-    them: a script calling ``ident.diagnose`` stopped by SIGTERM (Python's default handler skips ``atexit``; the
-    command line has its own and leaves nothing), or a Dask worker killed outright. Measured here: 21 such folders of
-    about 220 KB each in /tmp after a day of interrupted runs. A folder whose process id is alive is kept, whoever
-    owns it (a reused id only delays the removal); a folder of another host (a shared /tmp) is never touched."""
-    if os.name != "posix":   # os.kill(pid, 0) asks only on POSIX
-        return []
-    removed = []
-    for folder in Path(root if root is not None else tempfile.gettempdir()).glob(f"{_UNPACK_PREFIX}*-{_host_tag()}-*"):
-        pid = folder.name[len(_UNPACK_PREFIX):].split("-", 1)[0]
-        if pid.isdigit() and not _alive(int(pid)):
-            shutil.rmtree(folder, ignore_errors=True)
-            removed.append(folder)
-    return removed
+    on this host; return them (``ident.common.scratch``). Each plant calls it before unpacking its own."""
+    return remove_orphaned(_UNPACK_PREFIX, root)
 
 
 def _runner() -> ctypes.CDLL:
@@ -181,7 +149,7 @@ class Plant:
         except Exception as exc:
             raise PlantError(f"cannot read the FMU {path}: {exc}") from None
         remove_orphaned_fmus()
-        self._unzipdir = tempfile.mkdtemp(prefix=f"{_UNPACK_PREFIX}{os.getpid()}-{_host_tag()}-")
+        self._unzipdir = owned_dir(_UNPACK_PREFIX)
         _UNPACKED.add(self._unzipdir)
         kwargs = dict(guid=self.model_description.guid, unzipDirectory=self._unzipdir,
                       modelIdentifier=self.model_description.coSimulation.modelIdentifier, instanceName="plant")

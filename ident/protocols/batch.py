@@ -21,7 +21,6 @@ import multiprocessing
 import os
 import shutil
 import sys
-import tempfile
 import threading
 import uuid
 from contextlib import contextmanager
@@ -31,6 +30,7 @@ from typing import Any, Callable, Iterator, Sequence, TypeVar
 from tqdm import tqdm
 
 from ..common.elsewhere import Elsewhere, NotRunElsewhere, Task
+from ..common.scratch import owned_dir, remove_orphaned
 from ..common.workdir import kept_working_directory
 
 T = TypeVar("T")
@@ -41,12 +41,24 @@ LIVENESS_POLL_S = 5.0      # how often a batch waiting for results checks that t
 
 
 _SCRATCH: set[str] = set()   # local workers' temporary folders: removed after the batch and once more at exit
+#: local workers' folder (their scratch space, TMPDIR and unpacked FMUs): this prefix, then ``owned_dir``'s naming
+_WORKERS_PREFIX = "hdrive-workers-"
 
 
 @atexit.register   # registered before Dask is imported, so it runs after Dask's own exit handlers
 def _remove_scratch() -> None:
     for folder in list(_SCRATCH):
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def _new_scratch() -> str:
+    """A new folder for local workers, the orphaned ones of processes killed before they removed theirs removed
+    first (``ident.common.scratch``). An interrupted cluster may still write into it while it shuts down: it is
+    removed after the batch and once more at exit (``_SCRATCH``)."""
+    remove_orphaned(_WORKERS_PREFIX)
+    scratch = owned_dir(_WORKERS_PREFIX)
+    _SCRATCH.add(scratch)
+    return scratch
 
 
 def abandon_local_workers() -> None:
@@ -228,8 +240,7 @@ def _local_client(n: int) -> Iterator[Any]:
     import dask
 
     _refuse_while_importing_main()
-    scratch = tempfile.mkdtemp(prefix="hdrive-workers-")
-    _SCRATCH.add(scratch)   # an interrupted cluster may still write into it while it shuts down
+    scratch = _new_scratch()
     cluster = client = None
     try:
         with dask.config.set({"temporary-directory": scratch}):
@@ -430,8 +441,7 @@ class WorkerPool:
             self.client = connect(self.scheduler)
         elif not self.serial:
             _refuse_while_importing_main()
-            self._scratch = tempfile.mkdtemp(prefix="hdrive-workers-")
-            _SCRATCH.add(self._scratch)
+            self._scratch = _new_scratch()
             self._starting = threading.Thread(target=self._start, name="hdrive-workers", daemon=True)
             self._starting.start()
         return self
