@@ -19,6 +19,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import resource
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -181,11 +182,21 @@ def run_case(case: Case, duration_s: float | None = None, rate_hz: float | None 
     from ident.diagnosis.engine import diagnose
 
     log, truth = load(case, duration_s, rate_hz)
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), cpu_seconds()
     diag = diagnose(log, resolution_pulses=0, **options)
     out = score(case, truth, diag, time.perf_counter() - t0)
+    out["cpu_s"] = cpu_seconds() - cpu0
     out["log_sha256"] = log_fingerprint(case, duration_s, rate_hz)
     return out
+
+
+def cpu_seconds() -> float:
+    """CPU time (user + system) of this process and of its ended child processes: a diagnosis's local workers are
+    children, ended with its pool, so the difference around one diagnosis is the CPU it used on every core. Less
+    sensitive than the wall time to a machine that runs slower one day than another (measured on this KVM machine:
+    the same diagnosis 392 s one day, 466 s the next, nothing else running), so two builds compare on it."""
+    own, ended = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + ended.ru_utime + ended.ru_stime
 
 
 def log_fingerprint(case: Case, duration_s: float | None = None, rate_hz: float | None = None) -> str:
@@ -207,9 +218,10 @@ def success(r: dict[str, Any]) -> bool:
 
 def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
     """Per class: logs, successes (``success``), named right / missed / false (``confident_false``: of them, named
-    without a doubt), confident names, wall time median and max and where it went (``time_share``), the screen's
-    first-ranked candidate; the magnitude errors where the shape is the library's, and how often their 95 % intervals
-    hold the truth (``coverage``, for confident and tentative names apart)."""
+    without a doubt), confident names, wall time median and max and where it went (``time_share``), the CPU time
+    summed over the class (``cpu_seconds``; NaN where a result predates it), the screen's first-ranked candidate;
+    the magnitude errors where the shape is the library's, and how often their 95 % intervals hold the truth
+    (``coverage``, for confident and tentative names apart)."""
     table = {}
     for cls in CLASSES:
         rs = [r for r in results if r["class"] == cls]
@@ -228,6 +240,7 @@ def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
                       "logs_with_confident_name": sum(bool(r["confident"]) for r in rs),
                       "logs_with_unexplained": sum(bool(r["unexplained"]) for r in rs),
                       "time_median_s": float(np.median(t)), "time_max_s": float(np.max(t)),
+                      "cpu_total_s": sum(r.get("cpu_s", math.nan) for r in rs),
                       "time_share": time_share(rs), "screen_first": firsts}
     mags = [m for r in results for m in r["magnitudes"] if m["rel_err"] is not None]
     return {"classes": table, "magnitudes": {

@@ -532,6 +532,26 @@ def test_exponential_decay_slide_through_its_range(vs: float) -> None:
     np.testing.assert_allclose(out[:, 0], got[:, 0], rtol=0, atol=1e-10)
 
 
+@pytest.mark.parametrize("vs", [2e-4, 1e-3])
+def test_gaussian_decay_slide_through_its_range(vs: float) -> None:
+    """The Gaussian decay's substeps lengthen past its steepest part (its seventh derivative's size, GAUSS_SEVENTH in
+    model.c): a motor that breaks away at three times its level, load held, slides through the decay's range (6 vs)
+    and far beyond, back through it to a stop and a reversal, within the slide test's bound of the independent DOP853
+    reference (measured: 4.6e-13 and 2.1e-13 rad, as with the breakaway's substeps over the whole range; 2.5e-9 at
+    1e-3 with no Stribeck limit past the breakaway)."""
+    p = NOMINAL.with_values(f_l=1e3, stribeck_ratio=0.8, stribeck_velocity=vs, friction_asymmetry=0.15, b_m=5e-5)
+    level = p.f_m * (1 + 0.15) * (1 + 0.8)
+    dt = 2e-4
+    torques = np.concatenate([np.full(20, 3 * level), np.zeros(200)])
+    with Plant(p) as plant:
+        out = traj(plant, torques, dt, ("q_m", "v_m"))
+    ref = Reference(p)
+    got = np.array([ref.y.copy()] + [ref.advance(T, dt) for T in torques])
+    assert np.max(np.abs(out[:, 1])) > 20 * vs / p.r  # through the whole range and beyond
+    assert np.any(np.diff(np.sign(out[:, 1])) < 0)  # and back through it, reversing
+    np.testing.assert_allclose(out[:, 0], got[:, 0], rtol=0, atol=1e-10)
+
+
 # ---------------------------------------------------------------------------- 6. hysteresis ----------------------
 
 def test_hysteresis_dahl_branches(fmi: int) -> None:
