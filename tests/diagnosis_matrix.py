@@ -192,9 +192,11 @@ def run_case(case: Case, duration_s: float | None = None, rate_hz: float | None 
 
 def cpu_seconds() -> float:
     """CPU time (user + system) of this process and of its ended child processes: a diagnosis's local workers are
-    children, ended with its pool, so the difference around one diagnosis is the CPU it used on every core. Less
-    sensitive than the wall time to a machine that runs slower one day than another (measured on this KVM machine:
-    the same diagnosis 392 s one day, 466 s the next, nothing else running), so two builds compare on it."""
+    children, ended with its pool, so the difference around one diagnosis is the CPU it used on every core. It does
+    not count the time the process waited for a core, but it still drifts with the machine: on this KVM machine 18
+    logs (16 reaching the same final models) took 9 % more CPU in one half hour, on an FMU build that simulates them
+    with no more work, than on the other build in the next; two builds compare on it only beyond that, run in both
+    orders."""
     own, ended = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     return own.ru_utime + own.ru_stime + ended.ru_utime + ended.ru_stime
 
