@@ -1879,3 +1879,64 @@ def test_a_rival_outside_the_library_that_fits_as_well_puts_a_name_in_doubt_at_t
     above = Plugin(CONFIDENT_OVER_NOISE * 1.01)
     assert _outside_doubts(above, final, names, notes) == {} and above.asked == 0 and "not fitted" in notes[-1]
     assert _outside_doubts(plugin, final, [], notes) == {} and plugin.asked == 1
+
+
+def test_the_gauss_newton_decrement_is_the_linear_models_least_squares_drop():
+    """``gauss_newton_decrement``: what the least-squares step of the linear model removes from |r|^2, which is
+    also that step's squared length in the fit's standard errors (Delta^T J^T J Delta); a column of zeros (an
+    unknown its bounds hold) adds nothing, and with none left nothing can be removed."""
+    from ident.fitting.identify import gauss_newton_decrement
+
+    rng = np.random.default_rng(20261202)
+    J = rng.normal(size=(400, 3)) @ np.array([[1.0, 0.9, 0.0], [0.0, 0.1, 0.0], [0.0, 0.0, 1e3]])  # correlated
+    r = rng.normal(size=400) + J @ np.array([0.3, -2.0, 1e-3])
+    step, *_ = np.linalg.lstsq(J, -r, rcond=None)
+    left = r + J @ step
+    held = np.column_stack([J[:, :2], np.zeros(400), J[:, 2:]])
+    assert gauss_newton_decrement(held, r) == pytest.approx(r @ r - left @ left, rel=1e-9)
+    assert gauss_newton_decrement(held, r) == pytest.approx(step @ (J.T @ J) @ step, rel=1e-9)
+    assert gauss_newton_decrement(np.zeros((400, 2)), r) == 0.0
+
+
+def test_a_settled_fit_ends_within_a_tenth_of_a_standard_error_of_ipopts_own_end(monkeypatch):
+    """A refit ends once the Gauss-Newton step at its best point would lower the cost by less than ``SETTLED``
+    noise variances (``ModelProblem.settled``), with fewer simulations than IPOPT's own stops take, at a cost
+    within ``SETTLED`` of theirs and a point within a tenth of a standard error (the linear model's, at their end)
+    of theirs. The base model on a clean log of the independent generator, from a start 30 standard errors off
+    (the length of its step in the fit's own metric)."""
+    from ident.diagnosis.models import problem as problem_mod
+    from ident.diagnosis.models import two_inertia
+    from ident.diagnosis.models.problem import SETTLED, ModelProblem
+    from ident.fitting.identify import identify
+
+    log, _ = load(CLEAN, **SHORT)
+    fit = identify(log)
+    stop = log.n // 2
+
+    def problem() -> ModelProblem:
+        return ModelProblem(log, fit.params, (), None, stop, fit.sigma_load_rad)
+
+    p = problem()
+    try:
+        lo, hi = p.bounds()
+        J = p.jacobian(fit.theta)
+    finally:
+        p.close()
+    start = np.clip(fit.theta + np.linalg.cholesky(np.linalg.inv(J.T @ J)) @ (15.0 * np.array([1, -1, 1, -1])), lo, hi)
+
+    def run(settle: bool) -> tuple[float, np.ndarray, int, np.ndarray]:
+        monkeypatch.setattr(problem_mod, "SETTLED", SETTLED if settle else -1.0)
+        p = problem()
+        try:
+            theta = two_inertia._ipopt_or_best(p, start, lo, hi)
+            assert p.settled() == settle
+            return p.cost(theta), theta, p.evaluations, p.jacobian(theta)
+        finally:
+            p.close()
+
+    settled_cost, settled_at, settled_sims, _ = run(True)
+    own_cost, own_at, own_sims, J = run(False)
+    assert settled_sims < own_sims
+    assert settled_cost - own_cost < SETTLED
+    d = settled_at - own_at
+    assert d @ (J.T @ J) @ d < SETTLED

@@ -940,13 +940,15 @@ def _retry_starts(test: ScoreTest, coords: list[Any], x: np.ndarray) -> list[np.
 
 def _ipopt_or_best(problem: ModelProblem, head: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                    max_iter: int = 500) -> np.ndarray:
-    """IPOPT from ``head``, checked between iterations: a fit that stalls (three iterations' simulations without
-    progress, ``ModelProblem.stalled``) ends there; one whose budget cannot pay for another iteration raises
-    ``BudgetExceeded``. The result is the best point simulated (every iterate IPOPT returns was simulated)."""
+    """IPOPT from ``head``, checked between iterations: a fit that settles (``ModelProblem.settled``) or stalls
+    (three iterations' simulations without progress, ``ModelProblem.stalled``) ends there; one whose budget cannot
+    pay for another iteration raises ``BudgetExceeded``. The result is the best point simulated (every iterate
+    IPOPT returns was simulated)."""
     per_iteration = head.size + 2
     theta, _ = fit_ipopt(problem, head, lo, hi, max_iter,
-                         stop=lambda: problem.stalled(3 * per_iteration) or problem.spent(per_iteration))
-    if problem.spent(per_iteration) and not problem.stalled(3 * per_iteration):
+                         stop=lambda: problem.settled() or problem.stalled(3 * per_iteration)
+                         or problem.spent(per_iteration))
+    if problem.spent(per_iteration) and not (problem.settled() or problem.stalled(3 * per_iteration)):
         raise BudgetExceeded(f"the fit used up its budget of {problem.budget.limit / problem.stop:.4g} simulations "
                              "before it converged")
     return problem.best[1] if problem.best is not None else theta
