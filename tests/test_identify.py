@@ -446,6 +446,9 @@ class _Linear:
     def check_budget(self) -> None:
         pass
 
+    def jacobian_taken(self, J: np.ndarray, r: np.ndarray) -> None:
+        pass
+
 
 def test_ipopt_reaches_least_squares_with_one_jacobian_per_point() -> None:
     """IPOPT's cost, gradient and Gauss-Newton Hessian come from the callbacks' numpy products: the optimum is the
