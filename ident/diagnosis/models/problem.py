@@ -68,7 +68,8 @@ STALL_TOL = 1e-8
 #: 26-30 % of a diagnosis's simulations after each fit was within 0.01 noise variances of the best it reached
 #: (bench/README.md, stop 73). Not the observed change over some iterations, which a slow walk along a narrow valley
 #: also shows (that rule once ended fits 11 standard errors short: ``identify._gauss_newton_solver``): the decrement
-#: measures the distance left, not the pace.
+#: measures the distance left, not the pace. At a model that leaves more than the noise, both are scaled by its
+#: residual variance (``ModelProblem.settled``), as its standard errors are.
 SETTLED = 0.01
 
 
@@ -126,9 +127,22 @@ class ModelProblem(OutputError):
         """The last point IPOPT took a Jacobian at costs within ``SETTLED`` of the best point simulated (which may be
         one of that Jacobian's own points), and its Gauss-Newton decrement is below ``SETTLED``: no step the fit's
         linear model knows of would lower the best cost by more, or move the point by a tenth of a standard
-        error."""
+        error. Both in the fit's own standard errors: at a model that leaves more than the noise (``misfit``: the
+        residual variance s^2, in noise variances), the loop's standard errors are the sandwich's where larger
+        (``TwoInertiaPlugin._cov``), s times the noise-only ones for a white misfit and more for a correlated one,
+        and the tolerances here are scaled by s^2 (never below ``SETTLED``)."""
         d, best = self.newton_decrement(), self.best
-        return d is not None and best is not None and d[0] - best[0] < SETTLED and d[1] < SETTLED
+        if d is None or best is None:
+            return False
+        tol = SETTLED * max(1.0, self.misfit(best[0]))
+        return d[0] - best[0] < tol and d[1] < tol
+
+    def misfit(self, cost: float) -> float:
+        """``cost`` over what a model that reproduces the training data leaves by chance (one noise variance per
+        load row, w^2 per motor row of the encoder's weights, the rows left out not counted): the residual
+        variance in noise variances, ~1 at such a model."""
+        expected = (self.y_l.size - self.skip) + float(np.sum(np.square(self.w_m[self.skip:])))
+        return cost / max(expected, 1.0)
 
     def stalled(self, after: int) -> bool:
         """No simulation has lowered the best cost (by more than ``STALL_TOL``) for ``after`` simulations."""
