@@ -140,7 +140,9 @@ class ModelProblem(OutputError):
     def misfit(self, cost: float) -> float:
         """``cost`` over what a model that reproduces the training data leaves by chance (one noise variance per
         load row, w^2 per motor row of the encoder's weights, the rows left out not counted): the residual
-        variance in noise variances, ~1 at such a model."""
+        variance in noise variances, ~1 at such a model. Both sensors' rows, as the cost and the Gauss-Newton
+        decrement it scales (``settled``); ``sizes.residual_variance`` is a fitted model's load rows alone, the
+        training cost the loop compares models by."""
         expected = (self.y_l.size - self.skip) + float(np.sum(np.square(self.w_m[self.skip:])))
         return cost / max(expected, 1.0)
 
