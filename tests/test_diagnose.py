@@ -318,6 +318,26 @@ def test_the_same_answer_on_two_workers_as_serially():
     for a, b in zip(parallel.steps, serial.steps):
         pd.testing.assert_frame_equal(a.candidates, b.candidates)
     assert parallel.notes == serial.notes and parallel.summary == serial.summary
+    assert parallel.fingerprint() == serial.fingerprint()   # and so is every other number and sentence
+
+
+def test_the_answer_fingerprint_ignores_times_and_paths_and_sees_the_last_bit() -> None:
+    """``Diagnosis.fingerprint``: two runs that differ only in their wall times and where they wrote share it (what a
+    user compares between machines); a parameter one bit apart, a NaN turned number, or a sentence changed do not."""
+    from ident.diagnosis.result import Diagnosis, DiagnosisStep, NamedEffect
+
+    def made(k: float = 1.5, nrmse: float = math.nan, line: str = "x named", **kw) -> Diagnosis:
+        step = DiagnosisStep("x", nrmse, 0.1, 1.0, 2.0, {"K_star": np.float64(k)},
+                             candidates=pd.DataFrame([{"candidate": "x", "train_cost": 3.0}]))
+        effect = NamedEffect("x", 1e-6, (0.9e-6, 1.1e-6), "rad", "gain", None, None)
+        return Diagnosis("two-inertia", [step], [effect], [], pd.DataFrame(), summary=[line], **kw)
+
+    one = made(elapsed_s=3.0, stage_s={"base fit": 1.0})
+    assert one.fingerprint() == made(elapsed_s=9.0, stage_s={"base fit": 4.0}, files={"report": "a/diagnosis.md"},
+                                     fmu="a/model.fmu").fingerprint()
+    assert one.to_dict()["answer_sha256"] == one.fingerprint() and "elapsed_s" not in one.answer()
+    for other in (made(k=float(np.nextafter(1.5, 2.0))), made(nrmse=0.1), made(line="x named tentatively")):
+        assert other.fingerprint() != one.fingerprint()
 
 
 def test_a_size_the_log_does_not_pin_is_tentative_and_its_interval_widens() -> None:

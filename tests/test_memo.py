@@ -61,6 +61,7 @@ def test_a_diagnosis_gives_the_same_answer_with_and_without_kept_simulations(mon
     for a, b in zip(kept.steps, alone.steps):
         assert a.candidates.to_json() == b.candidates.to_json() and a.screen.to_json() == b.screen.to_json()
     assert kept.notes == alone.notes and kept.summary == alone.summary
+    assert kept.fingerprint() == alone.fingerprint()   # and so is every other number and sentence
 
 
 @pytest.mark.parametrize("unit", [None, 0.5], ids=["simulations", "work"])

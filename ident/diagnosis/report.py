@@ -13,7 +13,7 @@ import numpy as np
 from ..common.markdown import md_table
 from ..common.output import staged_folder
 from ..common.units import after_number
-from .result import Diagnosis
+from .result import Diagnosis, json_default
 
 _STEP_COLUMNS = ("added", "removed", "nrmse_load", "nrmse_motor", "relative_error_pct", "heldback_nrmse_load",
                  "heldback_relative_error_pct", "train_over_noise_load", "heldback_over_noise_load", "score", "dm_p",
@@ -39,19 +39,9 @@ def write_diagnosis(diag: Diagnosis, plugin: Any, models: list[Any], out_dir: st
         diag.files = {k: str(out / v) for k, v in files.items()}
         diag.files["report"] = str(out / "diagnosis.md")
         diag.files["json"] = str(out / "diagnosis.json")
-        (stage / "diagnosis.json").write_text(json.dumps(diag.to_dict(), indent=2, default=_json_default))
+        (stage / "diagnosis.json").write_text(json.dumps(diag.to_dict(), indent=2, default=json_default))
         (stage / "diagnosis.md").write_text(markdown(diag, files, plugin.report_sections(models)))
     return out
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, (np.floating, np.integer)):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, (np.bool_,)):
-        return bool(value)
-    return str(value)
 
 
 def markdown(diag: Diagnosis, files: dict[str, str], sections: list[str]) -> str:
@@ -79,6 +69,8 @@ def markdown(diag: Diagnosis, files: dict[str, str], sections: list[str]) -> str
     lines += sections
     lines += ["## Plots", ""] + [f"![{k}]({v})" for k, v in files.items()]
     lines += ["", "## Notes", ""] + [f"- {n}" for n in diag.notes]
+    lines += ["", f"Answer fingerprint (SHA-256 of the answer without its wall times and file paths; another run "
+              f"on this log gives the same one on this kind of CPU): `{diag.fingerprint()}`"]
     return "\n".join(lines) + "\n"
 
 

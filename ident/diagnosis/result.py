@@ -6,9 +6,12 @@ FMU. ``to_dict()`` is the CLI's ``--json`` shape: ``steps``, ``effects``, ``unex
 """
 from __future__ import annotations
 
+import hashlib
+import json
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from ..common.units import after_number
@@ -120,6 +123,26 @@ class Diagnosis:
     stage_s: dict[str, float] = field(default_factory=dict)   # wall seconds per stage, in order (read by no decision)
 
     def to_dict(self) -> dict[str, Any]:
+        """The CLI's ``--json`` and ``diagnosis.json``; ``answer_sha256``: ``fingerprint()``."""
+        return {**self._fields(), "answer_sha256": self.fingerprint()}
+
+    def answer(self) -> dict[str, Any]:
+        """``to_dict()`` without what is not part of the answer: the wall times (``elapsed_s``, ``stage_s``) and
+        where the files were written (``files``, ``fmu``).
+
+        Why: two runs on the same log give the same answer to the last bit, alone or beside other work, on any
+        number of workers (no decision reads a clock); on another CPU, NumPy's and the BLAS library's vector paths
+        may round differently in the last bits, and a fit that ends on a stick-slip kink can then end elsewhere
+        (``bench/determinism.py`` measures both). A user comparing two machines compares this."""
+        return {k: v for k, v in self._fields().items() if k not in ("elapsed_s", "stage_s", "files", "fmu")}
+
+    def fingerprint(self) -> str:
+        """SHA-256 of ``answer()`` as canonical JSON (sorted keys, floats to the last bit): equal for equal
+        answers."""
+        text = json.dumps(self.answer(), sort_keys=True, default=json_default, allow_nan=True)
+        return hashlib.sha256(text.encode()).hexdigest()
+
+    def _fields(self) -> dict[str, Any]:
         return {"model": self.model, "summary": self.summary, "steps": [s.to_dict() for s in self.steps],
                 "effects": [e.to_dict() for e in self.effects], "unexplained": self.unexplained,
                 "not_ruled_out": self.not_ruled_out, "fmu": self.fmu, "fmu_note": self.fmu_note,
@@ -156,3 +179,14 @@ def _records(table: pd.DataFrame) -> list[dict[str, Any]]:
         return []
     return [{k: (None if isinstance(v, float) and v != v else v) for k, v in row.items()}
             for row in table.to_dict(orient="records")]
+
+
+def json_default(value: Any) -> Any:
+    """JSON for what ``json`` does not know: NumPy scalars and arrays as Python's, anything else as its text."""
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.bool_):
+        return bool(value)
+    return str(value)
