@@ -24,9 +24,8 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from ident.fitting.ahead import CORES  # noqa: E402
 from tests.diagnosis_matrix import load, matrix  # noqa: E402
-
-CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def avx512_off() -> dict[str, str] | None:

@@ -123,8 +123,10 @@ class Diagnosis:
     stage_s: dict[str, float] = field(default_factory=dict)   # wall seconds per stage, in order (read by no decision)
 
     def to_dict(self) -> dict[str, Any]:
-        """The CLI's ``--json`` and ``diagnosis.json``; ``answer_sha256``: ``fingerprint()``."""
-        return {**self._fields(), "answer_sha256": self.fingerprint()}
+        """The CLI's ``--json`` and ``diagnosis.json``; ``answer_sha256``: ``fingerprint()`` (of the same fields,
+        built once)."""
+        fields = self._fields()
+        return {**fields, "answer_sha256": _sha256(_answer_of(fields))}
 
     def answer(self) -> dict[str, Any]:
         """``to_dict()`` without what is not part of the answer: the wall times (``elapsed_s``, ``stage_s``) and
@@ -134,13 +136,12 @@ class Diagnosis:
         number of workers (no decision reads a clock); on another CPU, NumPy's and the BLAS library's vector paths
         may round differently in the last bits, and a fit that ends on a stick-slip kink can then end elsewhere
         (``bench/determinism.py`` measures both). A user comparing two machines compares this."""
-        return {k: v for k, v in self._fields().items() if k not in ("elapsed_s", "stage_s", "files", "fmu")}
+        return _answer_of(self._fields())
 
     def fingerprint(self) -> str:
         """SHA-256 of ``answer()`` as canonical JSON (sorted keys, floats to the last bit): equal for equal
         answers."""
-        text = json.dumps(self.answer(), sort_keys=True, default=json_default, allow_nan=True)
-        return hashlib.sha256(text.encode()).hexdigest()
+        return _sha256(self.answer())
 
     def _fields(self) -> dict[str, Any]:
         return {"model": self.model, "summary": self.summary, "steps": [s.to_dict() for s in self.steps],
@@ -179,6 +180,16 @@ def _records(table: pd.DataFrame) -> list[dict[str, Any]]:
         return []
     return [{k: (None if isinstance(v, float) and v != v else v) for k, v in row.items()}
             for row in table.to_dict(orient="records")]
+
+
+def _answer_of(fields: dict[str, Any]) -> dict[str, Any]:
+    """A diagnosis's fields without its wall times and the paths it wrote to (``Diagnosis.answer``)."""
+    return {k: v for k, v in fields.items() if k not in ("elapsed_s", "stage_s", "files", "fmu")}
+
+
+def _sha256(answer: dict[str, Any]) -> str:
+    text = json.dumps(answer, sort_keys=True, default=json_default, allow_nan=True)
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def json_default(value: Any) -> Any:
